@@ -1,0 +1,3 @@
+//! # brightpix-firmware
+#![no_std]
+pub mod engine;

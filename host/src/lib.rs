@@ -1,0 +1,2 @@
+//! # brightpix (host)
+pub mod reference;
