@@ -1,0 +1,112 @@
+//! Stage 3: centre of gravity and slopes (SPEC.md §5).
+
+use brightpix_protocol::Centroid;
+
+/// Weighted sums over a window in window-local pixel indices:
+/// `sum(w)`, `sum(w * i)`, `sum(w * j)`. |w| < 2^26, n <= 4096, i, j < 64, so
+/// each sum fits in 45 bits.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Moments {
+    pub sum_w: i64,
+    pub sum_wi: i64,
+    pub sum_wj: i64,
+}
+
+impl Moments {
+    pub const ZERO: Moments = Moments {
+        sum_w: 0,
+        sum_wi: 0,
+        sum_wj: 0,
+    };
+
+    #[inline(always)]
+    pub fn add(&mut self, weight: i32, i: u16, j: u16) {
+        let w = weight as i64;
+        self.sum_w += w;
+        self.sum_wi += w * i as i64;
+        self.sum_wj += w * j as i64;
+    }
+
+    /// `count` pixels of the same weight with coordinate sums `sum_i`, `sum_j`.
+    pub fn add_group(&mut self, weight: i32, count: u16, sum_i: u32, sum_j: u32) {
+        let w = weight as i64;
+        self.sum_w += w * count as i64;
+        self.sum_wi += w * sum_i as i64;
+        self.sum_wj += w * sum_j as i64;
+    }
+
+    /// A row segment with weight = value (no selection): columns `i0..`, row `j`.
+    #[inline(always)]
+    pub fn add_row(&mut self, values: &[i32], i0: u16, j: u16) {
+        let mut sum = 0i64;
+        let mut sum_i = 0i64;
+        for (k, &p) in values.iter().enumerate() {
+            sum += p as i64;
+            // |p| < 2^25 and i < 64: the product fits in 32 bits.
+            sum_i += (p * (i0 as i32 + k as i32)) as i64;
+        }
+        self.sum_w += sum;
+        self.sum_wi += sum_i;
+        self.sum_wj += sum * j as i64;
+    }
+}
+
+/// One sub-aperture's output for one frame (SPEC.md §6).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SubapertureResult {
+    /// Position in the configuration's window list.
+    pub index: u16,
+    /// Slopes in 2^-16 pixel, reference slopes subtracted; 0 when invalid.
+    pub slope_x: i32,
+    pub slope_y: i32,
+    /// Sum of weights, 1/16 count.
+    pub flux: i64,
+    pub valid: bool,
+}
+
+/// Turns moments into slopes.
+#[derive(Clone, Copy, Debug)]
+pub struct Centroider<'a> {
+    parameters: Centroid<'a>,
+}
+
+impl<'a> Centroider<'a> {
+    pub fn new(parameters: Centroid<'a>) -> Self {
+        Centroider { parameters }
+    }
+
+    pub fn result(&self, index: u16, moments: Moments, width: u16, height: u16) -> SubapertureResult {
+        let flux = moments.sum_w;
+        if flux <= self.parameters.min_flux {
+            return SubapertureResult {
+                index,
+                slope_x: 0,
+                slope_y: 0,
+                flux,
+                valid: false,
+            };
+        }
+        // Centred half-pixel coordinates a = 2i - (w - 1): S = 2 sum(w i) - (w - 1) F.
+        let sum_a = 2 * moments.sum_wi - (width as i64 - 1) * flux;
+        let sum_b = 2 * moments.sum_wj - (height as i64 - 1) * flux;
+        let [reference_x, reference_y] = self
+            .parameters
+            .reference_slopes
+            .map_or([0, 0], |r| r[index as usize]);
+        SubapertureResult {
+            index,
+            slope_x: slope(sum_a, flux, reference_x),
+            slope_y: slope(sum_b, flux, reference_y),
+            flux,
+            valid: true,
+        }
+    }
+}
+
+/// `clamp(floor((s * 2^16 + F) / 2F) - reference)`: round half up of
+/// s / 2F pixels in 2^-16 pixel. One 64-bit division, once per axis.
+#[inline]
+fn slope(sum: i64, flux: i64, reference: i32) -> i32 {
+    let quotient = ((sum << 16) + flux).div_euclid(2 * flux);
+    (quotient - reference as i64).clamp(i32::MIN as i64, i32::MAX as i64) as i32
+}

@@ -1,0 +1,487 @@
+//! The engine: routes pixels, as they arrive in raster order, through
+//! calibration and selection into the windows they belong to, and emits each
+//! sub-aperture's result the moment its last pixel has been seen.
+//!
+//! Windows are opened at their first row (taking a pool slot) and closed after
+//! their last, so only the windows crossing the current row hold state. The
+//! open windows are kept in a list sorted by first column, and a cursor skips
+//! those the current row has already passed, so a chunk touches only the
+//! windows it overlaps, whatever its length.
+
+use super::calibrate::Calibrator;
+use super::centroid::{Centroider, SubapertureResult};
+use super::memory::{EngineMemory, MemorySize};
+use super::select::{
+    below_capacity, heap_capacity, Rule, SelectionState, Slot, SubtractMeanRule,
+    SubtractNextDistinctRule, SubtractNextRule, ThresholdRule,
+};
+use brightpix_protocol::{
+    Config, ConfigError, MemoryKind, SelectionRule, MAX_WINDOW_SIDE,
+};
+
+/// Where results go.
+pub trait OutputSink {
+    /// A sub-aperture's last pixel has arrived.
+    fn subaperture(&mut self, result: SubapertureResult);
+    /// The frame's last pixel has arrived; `frame` counts completed frames
+    /// since the engine was configured, from 1.
+    fn frame_complete(&mut self, _frame: u32) {}
+}
+
+impl<F: FnMut(SubapertureResult)> OutputSink for F {
+    fn subaperture(&mut self, result: SubapertureResult) {
+        self(result)
+    }
+}
+
+/// A frame that cannot be processed (SPEC.md §8).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FrameError {
+    /// A raw pixel above `2^bit_depth - 1`. The frame is abandoned.
+    PixelOutOfRange { row: u16, column: u16, value: u16 },
+}
+
+impl core::fmt::Display for FrameError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            FrameError::PixelOutOfRange { row, column, value } => write!(
+                f,
+                "pixel at row {row}, column {column} is {value}, above the camera's bit depth"
+            ),
+        }
+    }
+}
+
+/// A window that has started receiving pixels in this frame.
+#[derive(Clone, Copy, Debug)]
+pub struct OpenWindow {
+    index: u16,
+    x: u16,
+    end_column: u16,
+    y: u16,
+    last_row: u16,
+    width: u16,
+    height: u16,
+    slot: u16,
+    finished: bool,
+    selection: SelectionState,
+}
+
+impl OpenWindow {
+    pub const CLOSED: OpenWindow = OpenWindow {
+        index: 0,
+        x: 0,
+        end_column: 0,
+        y: 0,
+        last_row: 0,
+        width: 0,
+        height: 0,
+        slot: 0,
+        finished: true,
+        selection: SelectionState::EMPTY,
+    };
+}
+
+/// The streaming brightest-pixel engine for one configuration.
+pub struct Engine<'c, 'm> {
+    config: Config<'c>,
+    calibrator: Calibrator<'c>,
+    centroider: Centroider<'c>,
+    memory: EngineMemory<'m>,
+    /// Pool entries per open window.
+    stride: usize,
+    max_raw: u16,
+    row: u16,
+    column: u16,
+    /// Next window (in `memory.order`) to open.
+    next_to_open: usize,
+    active_len: usize,
+    free_len: usize,
+    /// Active windows before this one are done with the current row.
+    cursor: usize,
+    frames: u32,
+    needed: MemorySize,
+}
+
+impl<'c, 'm> Engine<'c, 'm> {
+    /// Validates `config` and checks it fits `memory`. On error nothing is
+    /// kept (the caller's previous engine, if any, is untouched).
+    pub fn new(config: Config<'c>, memory: EngineMemory<'m>) -> Result<Self, ConfigError> {
+        config.validate()?;
+        let count = config.windows.len();
+        let available = memory.capacity();
+        if count > available.subapertures {
+            return Err(ConfigError::MemoryBudget {
+                needed: count,
+                available: available.subapertures,
+                what: MemoryKind::Subapertures,
+            });
+        }
+        let mut engine = Engine {
+            config,
+            calibrator: Calibrator::new(config.calibration),
+            centroider: Centroider::new(config.centroid),
+            memory,
+            stride: 0,
+            max_raw: config.camera.max_raw(),
+            row: 0,
+            column: 0,
+            next_to_open: 0,
+            active_len: 0,
+            free_len: 0,
+            cursor: 0,
+            frames: 0,
+            needed: MemorySize {
+                subapertures: count,
+                open_windows: 0,
+                pool_entries: 0,
+            },
+        };
+        let windows = config.windows;
+        let order = &mut engine.memory.order[..count];
+        for (k, o) in order.iter_mut().enumerate() {
+            *o = k as u16;
+        }
+        order.sort_unstable_by_key(|&k| (windows[k as usize].y, windows[k as usize].x));
+        engine.stride = (0..count)
+            .map(|k| {
+                let c = engine.capacity_of(k);
+                c as usize + below_capacity(config.selection.rule, c) as usize
+            })
+            .max()
+            .unwrap_or(0);
+        let open = engine.count_open_windows(available.open_windows)?;
+        engine.needed.open_windows = open;
+        engine.needed.pool_entries = open * engine.stride;
+        if engine.needed.pool_entries > available.pool_entries {
+            return Err(ConfigError::MemoryBudget {
+                needed: engine.needed.pool_entries,
+                available: available.pool_entries,
+                what: MemoryKind::SelectionEntries,
+            });
+        }
+        engine.reset_level_filters();
+        engine.start_frame();
+        Ok(engine)
+    }
+
+    /// The memory this configuration uses (see `memory.rs` for the budget).
+    pub fn memory_needed(&self) -> MemorySize {
+        self.needed
+    }
+
+    pub fn config(&self) -> &Config<'c> {
+        &self.config
+    }
+
+    /// Frames completed since configuration.
+    pub fn frames_completed(&self) -> u32 {
+        self.frames
+    }
+
+    /// Position of the next expected pixel: (row, column).
+    pub fn position(&self) -> (u16, u16) {
+        (self.row, self.column)
+    }
+
+    /// Whether the engine is between frames (no pixel of a frame seen yet).
+    pub fn at_frame_start(&self) -> bool {
+        self.row == 0 && self.column == 0
+    }
+
+    /// Forgets the temporally filtered levels (SPEC.md §4).
+    pub fn reset_level_filters(&mut self) {
+        let count = self.config.windows.len();
+        for state in &mut self.memory.level_filters[..count] {
+            *state = super::level_filter::LevelFilterState::RESET;
+        }
+    }
+
+    /// Drops a partly received frame; the next pixel starts a new frame.
+    pub fn abort_frame(&mut self) {
+        self.start_frame();
+    }
+
+    /// Feeds the next pixels of the frame, in raster order, in a chunk of any
+    /// length (it may end mid-row or run into the next frame).
+    pub fn push(&mut self, pixels: &[u16], sink: &mut impl OutputSink) -> Result<(), FrameError> {
+        match self.config.selection.rule {
+            SelectionRule::Threshold => self.push_with::<ThresholdRule>(pixels, sink),
+            SelectionRule::SubtractNext => self.push_with::<SubtractNextRule>(pixels, sink),
+            SelectionRule::SubtractNextDistinct => {
+                self.push_with::<SubtractNextDistinctRule>(pixels, sink)
+            }
+            SelectionRule::SubtractMean { .. } => self.push_with::<SubtractMeanRule>(pixels, sink),
+        }
+    }
+
+    fn push_with<R: Rule>(
+        &mut self,
+        mut pixels: &[u16],
+        sink: &mut impl OutputSink,
+    ) -> Result<(), FrameError> {
+        let width = self.config.camera.width;
+        while !pixels.is_empty() {
+            let take = pixels.len().min((width - self.column) as usize);
+            let (part, rest) = pixels.split_at(take);
+            if self.max_raw != u16::MAX {
+                if let Some(bad) = part.iter().position(|&r| r > self.max_raw) {
+                    self.push_row_part::<R>(&part[..bad], sink);
+                    let error = FrameError::PixelOutOfRange {
+                        row: self.row,
+                        column: self.column + bad as u16,
+                        value: part[bad],
+                    };
+                    self.start_frame();
+                    return Err(error);
+                }
+            }
+            self.push_row_part::<R>(part, sink);
+            self.column += take as u16;
+            if self.column == width {
+                self.end_row(sink);
+            }
+            pixels = rest;
+        }
+        Ok(())
+    }
+
+    /// Pixels `column .. column + part.len()` of the current row.
+    #[inline(always)]
+    fn push_row_part<R: Rule>(&mut self, part: &[u16], sink: &mut impl OutputSink) {
+        let start = self.column;
+        let end = start + part.len() as u16;
+        let row = self.row;
+        let row_offset = row as usize * self.config.camera.width as usize;
+        let mut calibrated = [0i32; MAX_WINDOW_SIDE as usize];
+        let level_shift = self.config.selection.level_filter.map(|f| f.gain_shift);
+        let memory = &mut self.memory;
+        let mut k = self.cursor;
+        while k < self.active_len {
+            let window = &mut memory.open[memory.active[k] as usize];
+            if window.x >= end {
+                break;
+            }
+            let from = window.x.max(start);
+            let to = window.end_column.min(end);
+            if from < to {
+                let raw = &part[(from - start) as usize..(to - start) as usize];
+                self.calibrator
+                    .calibrate(raw, row_offset + from as usize, &mut calibrated);
+                let capacity = window.selection.capacity();
+                let mut slot = slot_at(
+                    memory.values,
+                    memory.positions,
+                    window.slot as usize * self.stride,
+                    capacity,
+                    below_capacity(self.config.selection.rule, capacity),
+                );
+                window.selection.push::<R>(
+                    &mut slot,
+                    &calibrated[..raw.len()],
+                    from - window.x,
+                    row - window.y,
+                );
+                if to == window.end_column && row == window.last_row {
+                    let filter = level_shift
+                        .map(|shift| (&mut memory.level_filters[window.index as usize], shift));
+                    let moments = window.selection.finish::<R>(&slot, filter);
+                    window.finished = true;
+                    sink.subaperture(self.centroider.result(
+                        window.index,
+                        moments,
+                        window.width,
+                        window.height,
+                    ));
+                }
+            }
+            if k == self.cursor && window.end_column <= end {
+                self.cursor += 1;
+            }
+            k += 1;
+        }
+    }
+
+    fn end_row(&mut self, sink: &mut impl OutputSink) {
+        // Close finished windows, keeping the active list in column order.
+        let memory = &mut self.memory;
+        let mut kept = 0;
+        for k in 0..self.active_len {
+            let slot = memory.active[k];
+            if memory.open[slot as usize].finished {
+                memory.free[self.free_len] = slot;
+                self.free_len += 1;
+            } else {
+                memory.active[kept] = slot;
+                kept += 1;
+            }
+        }
+        self.active_len = kept;
+        self.cursor = 0;
+        self.column = 0;
+        self.row += 1;
+        if self.row == self.config.camera.height {
+            self.frames = self.frames.wrapping_add(1);
+            sink.frame_complete(self.frames);
+            self.start_frame();
+        } else {
+            self.open_windows_of_row();
+        }
+    }
+
+    fn start_frame(&mut self) {
+        let open = self.memory.capacity().open_windows;
+        for (k, f) in self.memory.free[..open].iter_mut().enumerate() {
+            *f = (open - 1 - k) as u16;
+        }
+        self.free_len = open;
+        self.active_len = 0;
+        self.cursor = 0;
+        self.row = 0;
+        self.column = 0;
+        self.next_to_open = 0;
+        self.open_windows_of_row();
+    }
+
+    /// Opens the windows whose first row is the current row.
+    fn open_windows_of_row(&mut self) {
+        let windows = self.config.windows;
+        while self.next_to_open < windows.len() {
+            let index = self.memory.order[self.next_to_open] as usize;
+            let w = windows[index];
+            if w.y != self.row {
+                break;
+            }
+            self.next_to_open += 1;
+            // Capacity was proved sufficient when the engine was configured.
+            self.free_len -= 1;
+            let slot = self.memory.free[self.free_len];
+            self.memory.open[slot as usize] = OpenWindow {
+                index: index as u16,
+                x: w.x,
+                end_column: w.end_column(),
+                y: w.y,
+                last_row: w.last_row(),
+                width: w.width,
+                height: w.height,
+                slot,
+                finished: false,
+                selection: SelectionState::new(self.capacity_of(index)),
+            };
+            // Insert into the active list, sorted by first column.
+            let active = &mut self.memory.active;
+            let open = &self.memory.open;
+            let mut k = self.active_len;
+            while k > 0 && open[active[k - 1] as usize].x > w.x {
+                active[k] = active[k - 1];
+                k -= 1;
+            }
+            active[k] = slot;
+            self.active_len += 1;
+        }
+    }
+
+    fn capacity_of(&self, index: usize) -> u16 {
+        heap_capacity(
+            self.config.selection.rule,
+            self.config.pixel_count(index),
+            self.config.windows[index].pixel_count(),
+        )
+    }
+
+    /// The largest number of windows open at once over a frame, using the
+    /// active list as a min-heap of last rows; fails if above `available`.
+    fn count_open_windows(&mut self, available: usize) -> Result<usize, ConfigError> {
+        let windows = self.config.windows;
+        let heap = &mut self.memory.active[..available];
+        let mut len = 0usize;
+        let mut most = 0usize;
+        for &k in self.memory.order[..windows.len()].iter() {
+            let w = windows[k as usize];
+            // Close the windows that ended before this one's first row.
+            while len > 0 && heap[0] < w.y {
+                len -= 1;
+                heap[0] = heap[len];
+                sift_down_rows(&mut heap[..len]);
+            }
+            if len == available {
+                return Err(ConfigError::MemoryBudget {
+                    needed: self.count_open_windows_slowly(),
+                    available,
+                    what: MemoryKind::OpenWindows,
+                });
+            }
+            heap[len] = w.last_row();
+            len += 1;
+            sift_up_rows(&mut heap[..len]);
+            most = most.max(len);
+        }
+        Ok(most)
+    }
+
+    /// Exact count for the error message, without memory: O(windows^2).
+    fn count_open_windows_slowly(&self) -> usize {
+        let windows = self.config.windows;
+        windows
+            .iter()
+            .map(|a| {
+                windows
+                    .iter()
+                    .filter(|b| b.y <= a.y && a.y <= b.last_row())
+                    .count()
+            })
+            .max()
+            .unwrap_or(0)
+    }
+}
+
+/// The pool slot at `base`: a heap of `capacity` entries, then `below`
+/// entries for subtract-mean.
+fn slot_at<'p>(
+    values: &'p mut [i32],
+    positions: &'p mut [u16],
+    base: usize,
+    capacity: u16,
+    below: u16,
+) -> Slot<'p> {
+    let (capacity, below) = (capacity as usize, below as usize);
+    let (heap_values, rest) = values[base..base + capacity + below].split_at_mut(capacity);
+    Slot {
+        heap_values,
+        heap_positions: &mut positions[base..base + capacity],
+        below: rest,
+    }
+}
+
+fn sift_up_rows(heap: &mut [u16]) {
+    let mut i = heap.len() - 1;
+    while i > 0 {
+        let parent = (i - 1) / 2;
+        if heap[parent] <= heap[i] {
+            break;
+        }
+        heap.swap(i, parent);
+        i = parent;
+    }
+}
+
+fn sift_down_rows(heap: &mut [u16]) {
+    let mut i = 0;
+    loop {
+        let left = 2 * i + 1;
+        if left >= heap.len() {
+            break;
+        }
+        let right = left + 1;
+        let child = if right < heap.len() && heap[right] < heap[left] {
+            right
+        } else {
+            left
+        };
+        if heap[child] >= heap[i] {
+            break;
+        }
+        heap.swap(i, child);
+        i = child;
+    }
+}
