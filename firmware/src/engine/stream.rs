@@ -104,9 +104,19 @@ pub struct Engine<'c, 'm> {
 }
 
 impl<'c, 'm> Engine<'c, 'm> {
-    /// Validates `config` and checks it fits `memory`. On error nothing is
-    /// kept (the caller's previous engine, if any, is untouched).
+    /// Validates `config` and checks it fits `memory`; resets the level
+    /// filters (SPEC.md §4). On error nothing is kept (the caller's previous
+    /// engine, if any, is untouched).
     pub fn new(config: Config<'c>, memory: EngineMemory<'m>) -> Result<Self, ConfigError> {
+        let mut engine = Self::resume(config, memory)?;
+        engine.reset_level_filters();
+        Ok(engine)
+    }
+
+    /// As [`new`](Self::new), but keeps the level-filter state already in
+    /// `memory`: for a caller that re-borrows the memory of an engine it
+    /// built earlier with the same configuration.
+    pub fn resume(config: Config<'c>, memory: EngineMemory<'m>) -> Result<Self, ConfigError> {
         config.validate()?;
         let count = config.windows.len();
         let available = memory.capacity();
@@ -160,7 +170,6 @@ impl<'c, 'm> Engine<'c, 'm> {
                 what: MemoryKind::SelectionEntries,
             });
         }
-        engine.reset_level_filters();
         engine.start_frame();
         Ok(engine)
     }
