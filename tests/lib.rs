@@ -1,1 +1,229 @@
-//! Shared helpers for the cross-crate tests.
+//! Shared helpers for the cross-crate tests: random configurations and
+//! frames for the differential tests (engine against reference).
+
+use brightpix_protocol::{
+    Calibration, Camera, Centroid, Config, LevelFilter, PixelCount, Selection, SelectionRule,
+    SubapertureWindow,
+};
+use proptest::prelude::*;
+
+/// A configuration with owned maps.
+#[derive(Clone, Debug)]
+pub struct Case {
+    pub camera: Camera,
+    pub windows: Vec<SubapertureWindow>,
+    pub background: Option<Vec<i32>>,
+    pub gain: Option<Vec<u16>>,
+    pub threshold: Option<i32>,
+    pub rule: SelectionRule,
+    pub count: Count,
+    pub level_filter: Option<LevelFilter>,
+    pub reference_slopes: Option<Vec<[i32; 2]>>,
+    pub min_flux: i64,
+}
+
+#[derive(Clone, Debug)]
+pub enum Count {
+    All(u16),
+    PerSubaperture(Vec<u16>),
+}
+
+impl Case {
+    pub fn config(&self) -> Config<'_> {
+        Config {
+            camera: self.camera,
+            windows: &self.windows,
+            calibration: Calibration {
+                background: self.background.as_deref(),
+                gain: self.gain.as_deref(),
+                threshold: self.threshold,
+            },
+            selection: Selection {
+                rule: self.rule,
+                count: match &self.count {
+                    Count::All(n) => PixelCount::All(*n),
+                    Count::PerSubaperture(list) => PixelCount::PerSubaperture(list),
+                },
+                level_filter: self.level_filter,
+            },
+            centroid: Centroid {
+                reference_slopes: self.reference_slopes.as_deref(),
+                min_flux: self.min_flux,
+            },
+        }
+    }
+}
+
+/// Any of the four rules.
+pub fn rule() -> impl Strategy<Value = SelectionRule> {
+    prop_oneof![
+        Just(SelectionRule::Threshold),
+        Just(SelectionRule::SubtractNext),
+        Just(SelectionRule::SubtractNextDistinct),
+        (1u16..=16).prop_map(|count| SelectionRule::SubtractMean { count }),
+    ]
+}
+
+fn window_in(width: u16, height: u16, max_side: u16) -> impl Strategy<Value = SubapertureWindow> {
+    (1..=width.min(max_side), 1..=height.min(max_side)).prop_flat_map(move |(w, h)| {
+        (0..=width - w, 0..=height - h).prop_map(move |(x, y)| SubapertureWindow {
+            x,
+            y,
+            width: w,
+            height: h,
+        })
+    })
+}
+
+/// Windows: a random list (may overlap) or a regular grid with skipped cells.
+fn windows(width: u16, height: u16) -> impl Strategy<Value = Vec<SubapertureWindow>> {
+    let random = prop::collection::vec(window_in(width, height, 20), 1..10);
+    let grid = (1..=width.min(12), 1..=height.min(12)).prop_flat_map(move |(w, h)| {
+        let columns = width / w;
+        let rows = height / h;
+        prop::collection::vec(any::<bool>(), (columns * rows) as usize).prop_map(move |keep| {
+            let mut out: Vec<SubapertureWindow> = (0..rows)
+                .flat_map(|r| {
+                    (0..columns).map(move |c| SubapertureWindow {
+                        x: c * w,
+                        y: r * h,
+                        width: w,
+                        height: h,
+                    })
+                })
+                .zip(&keep)
+                .filter(|(_, k)| **k)
+                .map(|(w, _)| w)
+                .collect();
+            if out.is_empty() {
+                out.push(SubapertureWindow {
+                    x: 0,
+                    y: 0,
+                    width: w,
+                    height: h,
+                });
+            }
+            out
+        })
+    });
+    prop_oneof![random, grid]
+}
+
+/// How pixel values are drawn: heavy ties, small, full range, or saturated.
+#[derive(Clone, Copy, Debug)]
+pub enum PixelDistribution {
+    Tiny(u16),
+    Range(u16),
+    Full,
+    MostlySaturated,
+}
+
+pub fn pixel_distribution() -> impl Strategy<Value = PixelDistribution> {
+    prop_oneof![
+        (1u16..=4).prop_map(PixelDistribution::Tiny),
+        (5u16..=300).prop_map(PixelDistribution::Range),
+        Just(PixelDistribution::Full),
+        Just(PixelDistribution::MostlySaturated),
+    ]
+}
+
+/// Frames for `camera` drawn from `distribution`.
+pub fn frames(
+    camera: Camera,
+    distribution: PixelDistribution,
+    count: usize,
+) -> impl Strategy<Value = Vec<Vec<u16>>> {
+    let max = camera.max_raw();
+    let pixel = match distribution {
+        PixelDistribution::Tiny(k) => (0..=k.min(max)).boxed(),
+        PixelDistribution::Range(k) => (0..=k.min(max)).boxed(),
+        PixelDistribution::Full => (0..=max).boxed(),
+        PixelDistribution::MostlySaturated => prop_oneof![3 => Just(max), 1 => 0..=max].boxed(),
+    };
+    prop::collection::vec(
+        prop::collection::vec(pixel, camera.pixel_count()),
+        count,
+    )
+}
+
+/// A full random case: configuration, frames and chunk lengths.
+pub fn case() -> impl Strategy<Value = (Case, Vec<Vec<u16>>, Vec<usize>)> {
+    (1u16..=40, 1u16..=40, 8u8..=16).prop_flat_map(|(width, height, bit_depth)| {
+        let camera = Camera {
+            width,
+            height,
+            bit_depth,
+        };
+        let pixels = camera.pixel_count();
+        (
+            windows(width, height),
+            prop::option::of(prop_oneof![
+                prop::collection::vec(-2000i32..=2000, pixels),
+                prop::collection::vec(-(1i32 << 20)..=(1 << 20), pixels),
+            ]),
+            prop::option::of(prop_oneof![
+                prop::collection::vec(3000u16..=5000, pixels),
+                prop::collection::vec(0u16..=u16::MAX, pixels),
+            ]),
+            prop::option::of(-5000i32..=5000),
+            rule(),
+            prop::option::of((1u8..=16).prop_map(|gain_shift| LevelFilter { gain_shift })),
+            any::<bool>(),
+            prop_oneof![3 => Just(0i64), 1 => 0i64..100_000],
+            pixel_distribution(),
+            1usize..=3,
+        )
+            .prop_flat_map(
+                move |(
+                    windows,
+                    background,
+                    gain,
+                    threshold,
+                    rule,
+                    level_filter,
+                    per_subaperture,
+                    min_flux,
+                    distribution,
+                    frame_count,
+                )| {
+                    let count = windows.len();
+                    let level_filter = level_filter.filter(|_| rule.subtracts());
+                    let n = if per_subaperture {
+                        prop::collection::vec(1u16..=50, count)
+                            .prop_map(Count::PerSubaperture)
+                            .boxed()
+                    } else {
+                        (1u16..=50).prop_map(Count::All).boxed()
+                    };
+                    let references = prop::option::of(prop::collection::vec(
+                        [-(1i32 << 20)..=(1 << 20), -(1i32 << 20)..=(1 << 20)],
+                        count,
+                    ));
+                    (
+                        n,
+                        references,
+                        frames(camera, distribution, frame_count),
+                        prop::collection::vec(1usize..=(2 * width as usize + 3), 1..8),
+                    )
+                        .prop_map(move |(count, reference_slopes, frames, chunks)| {
+                            (
+                                Case {
+                                    camera,
+                                    windows: windows.clone(),
+                                    background: background.clone(),
+                                    gain: gain.clone(),
+                                    threshold,
+                                    rule,
+                                    count,
+                                    level_filter,
+                                    reference_slopes,
+                                    min_flux,
+                                },
+                                frames,
+                                chunks,
+                            )
+                        })
+                },
+            )
+    })
+}

@@ -1,0 +1,220 @@
+//! `cargo bench -p brightpix --bench engine`: the streaming engine against
+//! the reference (full sort per sub-aperture, as DARC and the paper) and
+//! against the floor for any selection, a centre of gravity with a known
+//! threshold, at the paper's defaults (CANARY: 7x7 sub-apertures of 16x16
+//! pixels, subtract-next, N = 20, 200 photons, 50 counts of background).
+//!
+//! Reports ns/pixel and ratios to the threshold-CoG baseline measured in the
+//! same run (the machines are noisy: only the ratios mean much). Set
+//! `BRIGHTPIX_BENCH_FRAMES` to change the number of frames.
+
+use brightpix::engine_runner::HostEngine;
+use brightpix::reference::Reference;
+use brightpix_protocol::{
+    Calibration, Camera, Centroid, Config, PixelCount, RegularGrid, Selection, SelectionRule,
+};
+use std::hint::black_box;
+use std::time::Instant;
+
+const SIDE: u16 = 16;
+const ACROSS: u16 = 7;
+
+/// Deterministic Shack-Hartmann-like frames: a Gaussian spot per
+/// sub-aperture at a random offset, 200 photons, 50 counts of background,
+/// uniform noise of +-3 counts (a bench needs realistic pixel statistics, not
+/// physics: see `brightpix paper` for those).
+fn frames(count: usize) -> Vec<Vec<u16>> {
+    let width = (SIDE * ACROSS) as usize;
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    (0..count)
+        .map(|_| {
+            let mut frame = vec![0u16; width * width];
+            for sy in 0..ACROSS as usize {
+                for sx in 0..ACROSS as usize {
+                    let cx = 7.5 + (next() - 0.5) * 6.0;
+                    let cy = 7.5 + (next() - 0.5) * 6.0;
+                    for j in 0..SIDE as usize {
+                        for i in 0..SIDE as usize {
+                            let r2 = (i as f64 - cx).powi(2) + (j as f64 - cy).powi(2);
+                            let spot =
+                                200.0 / (2.0 * std::f64::consts::PI * 2.25) * (-r2 / 4.5).exp();
+                            let v = 50.0 + spot + (next() - 0.5) * 6.0;
+                            frame[(sy * 16 + j) * width + sx * 16 + i] = v.round() as u16;
+                        }
+                    }
+                }
+            }
+            frame
+        })
+        .collect()
+}
+
+/// The floor: centre of gravity of pixels above a known threshold, straight
+/// from a frame in memory, no selection.
+fn threshold_cog(frame: &[u16], width: usize, threshold: i32, out: &mut Vec<(i64, i64, i64)>) {
+    out.clear();
+    for sy in 0..ACROSS as usize {
+        for sx in 0..ACROSS as usize {
+            let (mut f, mut fx, mut fy) = (0i64, 0i64, 0i64);
+            for j in 0..SIDE as usize {
+                let row = &frame[(sy * 16 + j) * width + sx * 16..][..SIDE as usize];
+                for (i, &p) in row.iter().enumerate() {
+                    let w = (p as i32 - threshold).max(0) as i64;
+                    f += w;
+                    fx += w * i as i64;
+                    fy += w * j as i64;
+                }
+            }
+            out.push((f, fx, fy));
+        }
+    }
+}
+
+fn time<F: FnMut()>(mut f: F, repeats: usize) -> f64 {
+    f(); // warm up
+    let mut best = f64::MAX;
+    for _ in 0..repeats {
+        let start = Instant::now();
+        f();
+        best = best.min(start.elapsed().as_secs_f64());
+    }
+    best
+}
+
+fn main() {
+    let count: usize = std::env::var("BRIGHTPIX_BENCH_FRAMES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(200);
+    let frames = frames(count);
+    let width = (SIDE * ACROSS) as usize;
+    let pixels = (count * width * width) as f64;
+    let grid = RegularGrid {
+        x: 0,
+        y: 0,
+        columns: ACROSS,
+        rows: ACROSS,
+        width: SIDE,
+        height: SIDE,
+        pitch_x: SIDE,
+        pitch_y: SIDE,
+    };
+    let windows: Vec<_> = grid.windows().collect();
+    let background = vec![50 * 16; width * width];
+    let config_with = |rule, n| Config {
+        camera: Camera {
+            width: width as u16,
+            height: width as u16,
+            bit_depth: 16,
+        },
+        windows: &windows,
+        calibration: Calibration {
+            background: Some(&background),
+            ..Calibration::default()
+        },
+        selection: Selection {
+            rule,
+            count: PixelCount::All(n),
+            level_filter: None,
+        },
+        centroid: Centroid::default(),
+    };
+    let paper = config_with(SelectionRule::SubtractNext, 20);
+
+    let mut cog = Vec::new();
+    let floor = time(
+        || {
+            for f in &frames {
+                threshold_cog(black_box(f), width, 50, &mut cog);
+                black_box(&cog);
+            }
+        },
+        5,
+    );
+    let mut results = vec![("threshold CoG (floor)", floor)];
+    let mut no_selection = HostEngine::new(config_with(SelectionRule::Threshold, 256)).unwrap();
+    results.push((
+        "engine, no selection (N >= 256)",
+        time(
+            || {
+                black_box(
+                    no_selection
+                        .process(frames.iter().map(Vec::as_slice), usize::MAX)
+                        .unwrap(),
+                );
+            },
+            5,
+        ),
+    ));
+    for (name, rule) in [
+        ("engine, subtract-next N=20", SelectionRule::SubtractNext),
+        ("engine, threshold N=20", SelectionRule::Threshold),
+        (
+            "engine, subtract-next-distinct N=20",
+            SelectionRule::SubtractNextDistinct,
+        ),
+        (
+            "engine, subtract-mean M=4 N=20",
+            SelectionRule::SubtractMean { count: 4 },
+        ),
+    ] {
+        let mut engine = HostEngine::new(config_with(rule, 20)).unwrap();
+        results.push((
+            name,
+            time(
+                || {
+                    black_box(
+                        engine
+                            .process(frames.iter().map(Vec::as_slice), usize::MAX)
+                            .unwrap(),
+                    );
+                },
+                5,
+            ),
+        ));
+    }
+    let mut engine = HostEngine::new(paper).unwrap();
+    results.push((
+        "engine, subtract-next N=20, 64-pixel chunks",
+        time(
+            || {
+                black_box(
+                    engine
+                        .process(frames.iter().map(Vec::as_slice), 64)
+                        .unwrap(),
+                );
+            },
+            5,
+        ),
+    ));
+    let mut reference = Reference::new(&paper).unwrap();
+    results.push((
+        "reference (full sort, i128), subtract-next N=20",
+        time(
+            || {
+                for f in &frames {
+                    black_box(reference.process_frame(f).unwrap());
+                }
+            },
+            2,
+        ),
+    ));
+    println!(
+        "brightpix engine benchmark: {count} frames of {width}x{width}, 7x7 sub-apertures of 16x16"
+    );
+    println!("{:<50} {:>10} {:>12}", "variant", "ns/pixel", "x floor");
+    for (name, seconds) in results {
+        println!(
+            "{:<50} {:>10.2} {:>12.2}",
+            name,
+            seconds * 1e9 / pixels,
+            seconds / floor
+        );
+    }
+}
