@@ -1,0 +1,281 @@
+#!/usr/bin/env python3
+"""Board checks of the brightpix QEMU firmware (echo build): run it under QEMU and check
+
+1. UART0 echo: random bytes come back unchanged (bulk and single-byte round trips);
+   byte 0x04 ends the emulation with exit code 0;
+2. defmt over semihosting decodes (defmt-print) and has the expected lines,
+   including the semihosting file-read smoke check (length + FNV-1a of a host file);
+3. the device clock (SysTick, 25 MHz) roughly matches wall time (QEMU without -icount);
+4. the idle executor sleeps (WFI): little host CPU while waiting for input;
+5. panic and HardFault (UDF) end QEMU with exit codes 101 and 102.
+
+Usage: check_qemu.py [ELF]   (default: firmware/target/thumbv7em-none-eabihf/release/brightpix-qemu)
+Needs qemu-system-arm and defmt-print (cargo install defmt-print) on PATH.
+"""
+
+import os
+import random
+import re
+import select
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import tty
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+FIRMWARE = os.path.normpath(os.path.join(HERE, "..", "..", ".."))
+DEFAULT_ELF = os.path.join(FIRMWARE, "target", "thumbv7em-none-eabihf", "release", "brightpix-qemu")
+EOT = 0x04
+PTY_BYTES = int(os.environ.get("PTY_BYTES", 100_000))
+PTY_DELAY = float(os.environ.get("PTY_DELAY", 3.0))
+
+
+def fnv1a32(data):
+    h = 0x811C9DC5
+    for b in data:
+        h = ((h ^ b) * 0x01000193) & 0xFFFFFFFF
+    return h
+
+
+class Qemu:
+    """QEMU with UART0 on a unix socket (QEMU waits for us); QEMU's stdout (the
+    semihosting output: defmt frames, nothing else with -display/-monitor none) in a file."""
+
+    def __init__(self, elf, tmp, args=()):
+        self.sock_path = os.path.join(tmp, "uart0.sock")
+        self.log_path = os.path.join(tmp, "defmt.bin")
+        for p in (self.sock_path, self.log_path):
+            if os.path.exists(p):
+                os.unlink(p)
+        sh_args = "".join(",arg=" + a for a in ("brightpix-qemu",) + tuple(args))
+        cmd = [
+            "qemu-system-arm", "-cpu", "cortex-m4", "-machine", "mps2-an386",
+            "-display", "none", "-monitor", "none",
+            "-serial", "unix:%s,server=on,wait=on" % self.sock_path,
+            "-semihosting-config", "enable=on,target=native" + sh_args,
+            "-kernel", elf,
+        ]
+        self.t0 = time.monotonic()
+        self.log = open(self.log_path, "wb")
+        self.proc = subprocess.Popen(cmd, stdout=self.log, stderr=subprocess.PIPE)
+        deadline = time.monotonic() + 10
+        while True:
+            try:
+                self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+                self.sock.connect(self.sock_path)
+                break
+            except (FileNotFoundError, ConnectionRefusedError):
+                self.sock.close()
+                if time.monotonic() > deadline or self.proc.poll() is not None:
+                    raise RuntimeError("QEMU did not open the UART socket: %r" % (self.proc.communicate(),))
+                time.sleep(0.02)
+        self.t_connected = time.monotonic()
+
+    def recv_exact(self, n, timeout=10.0):
+        self.sock.settimeout(timeout)
+        out = bytearray()
+        while len(out) < n:
+            chunk = self.sock.recv(n - len(out))
+            if not chunk:
+                raise RuntimeError("UART socket closed after %d of %d bytes" % (len(out), n))
+            out += chunk
+        return bytes(out)
+
+    def wait(self, timeout=10.0):
+        rc = self.proc.wait(timeout)
+        self.t_exit = time.monotonic()
+        self.sock.close()
+        self.log.close()
+        return rc
+
+    def cpu_seconds(self):
+        with open("/proc/%d/stat" % self.proc.pid) as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+    def defmt_lines(self, elf):
+        with open(self.log_path, "rb") as f:
+            raw = f.read()
+        res = subprocess.run(["defmt-print", "-e", elf], input=raw, capture_output=True, timeout=30)
+        text = res.stdout.decode(errors="replace") + res.stderr.decode(errors="replace")
+        return raw, [l for l in text.splitlines() if l.strip()]
+
+
+def pty_backpressure(elf, tmp, payload, delay):
+    """UART0 on a pty that the host does not read for `delay` s while it sends `payload`:
+    the device's TX stalls (pty buffer full), so it stops reading, so its RX FIFO fills
+    and the RX interrupt must hold QEMU off. Everything must still arrive, in order.
+    Returns (echo ok, exit code, defmt lines)."""
+    log_path = os.path.join(tmp, "defmt-pty.bin")
+    log = open(log_path, "wb")
+    cmd = [
+        "qemu-system-arm", "-cpu", "cortex-m4", "-machine", "mps2-an386",
+        "-display", "none", "-monitor", "none", "-serial", "pty",
+        "-semihosting-config", "enable=on,target=native",
+        "-kernel", elf,
+    ]
+    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.PIPE)
+    pts = None
+    deadline = time.monotonic() + 10
+    while pts is None and time.monotonic() < deadline:
+        with open(log_path, "rb") as f:
+            m = re.search(rb"(/dev/pts/\d+)", f.read(200))
+        pts = m and m.group(1).decode()
+        time.sleep(0.02)
+    fd = os.open(pts, os.O_RDWR | os.O_NOCTTY)
+    tty.setraw(fd)
+
+    def read_avail(timeout):
+        out = b""
+        while select.select([fd], [], [], timeout)[0]:
+            out += os.read(fd, 65536)
+            timeout = 0.05
+        return out
+
+    # QEMU notices the pty client within ~1 s; bytes sent before are lost.
+    for _ in range(20):
+        os.write(fd, b"S")
+        if b"S" in read_avail(0.5):
+            break
+    read_avail(1.2)  # drain late echoes of retries
+
+    def writer():
+        view = memoryview(payload)
+        while view:
+            n = os.write(fd, view[:4096])
+            view = view[n:]
+
+    th = threading.Thread(target=writer)
+    th.start()
+    time.sleep(delay)
+    got = bytearray()
+    end = time.monotonic() + 120
+    while len(got) < len(payload) and time.monotonic() < end:
+        if select.select([fd], [], [], 1.0)[0]:
+            got += os.read(fd, 65536)
+    th.join()
+    os.write(fd, bytes([EOT]))
+    rc = proc.wait(10)
+    os.close(fd)
+    log.close()
+    with open(log_path, "rb") as f:
+        raw = f.read()
+    raw = raw[raw.index(b")\n") + 2:]  # QEMU's "char device redirected to ..." line
+    res = subprocess.run(["defmt-print", "-e", elf], input=raw, capture_output=True, timeout=30)
+    lines = [l for l in res.stdout.decode(errors="replace").splitlines() if l.strip()]
+    return bytes(got) == payload, rc, lines
+
+
+def check(cond, what):
+    print(("ok   " if cond else "FAIL ") + what)
+    if not cond:
+        check.failed = True
+
+
+check.failed = False
+
+
+def main():
+    elf = os.path.abspath(sys.argv[1] if len(sys.argv) > 1 else DEFAULT_ELF)
+    rng = random.Random(1)
+    with tempfile.TemporaryDirectory() as tmp:
+        # --- main run: hostfs smoke file, idle CPU, echo, EOT ---
+        blob = bytes(rng.randrange(256) for _ in range(100_000))
+        blob_path = os.path.join(tmp, "smoke.bin")
+        with open(blob_path, "wb") as f:
+            f.write(blob)
+        q = Qemu(elf, tmp, [blob_path])
+
+        # Wait for the echo loop to be up: one byte round trip.
+        q.sock.sendall(b"A")
+        check(q.recv_exact(1, timeout=10) == b"A", "first echo byte")
+
+        cpu0, w0 = q.cpu_seconds(), time.monotonic()
+        time.sleep(2.0)
+        cpu = q.cpu_seconds() - cpu0
+        idle_wall = time.monotonic() - w0
+        check(cpu < 0.5 * idle_wall, "idle: %.2f s host CPU in %.2f s wall (WFI sleeps)" % (cpu, idle_wall))
+
+        rtts = []
+        for i in range(50):
+            b = bytes([0x30 + i % 10])
+            t = time.monotonic()
+            q.sock.sendall(b)
+            got = q.recv_exact(1)
+            rtts.append(time.monotonic() - t)
+            if got != b:
+                check(False, "single-byte echo %d: sent %r got %r" % (i, b, got))
+                break
+        rtts.sort()
+        print("     single-byte round trip: median %.0f us, max %.0f us"
+              % (rtts[len(rtts) // 2] * 1e6, rtts[-1] * 1e6))
+
+        payload = bytes(rng.choice([b for b in range(256) if b != EOT]) for _ in range(32_768))
+        received = bytearray()
+
+        def reader():
+            received.extend(q.recv_exact(len(payload), timeout=60))
+
+        th = threading.Thread(target=reader)
+        t = time.monotonic()
+        th.start()
+        q.sock.sendall(payload)
+        th.join()
+        dt = time.monotonic() - t
+        check(bytes(received) == payload, "bulk echo of %d random bytes (%.1f KB/s each way)"
+              % (len(payload), len(payload) / dt / 1e3))
+
+        q.sock.sendall(bytes([EOT]))
+        rc = q.wait()
+        wall = q.t_exit - q.t0
+        check(rc == 0, "EOT ends QEMU with exit code 0 (got %d)" % rc)
+
+        raw, lines = q.defmt_lines(elf)
+        print("     defmt log (%d bytes raw):" % len(raw))
+        for l in lines:
+            print("       " + l)
+        text = "\n".join(lines)
+        check("hello from mps2-an386" in text, "defmt hello decoded")
+        m = re.search(r"timer: 10 ms took (\d+) us", text)
+        check(m is not None and 10_000 <= int(m.group(1)) <= 20_000,
+          "Timer::after_millis(10) took [10, 20] ms (QEMU without -icount follows host time)")
+        want = "%d bytes read (SYS_FLEN %d), fnv1a32 0x%08x" % (len(blob), len(blob), fnv1a32(blob))
+        check(want in text, "hostfs smoke check: " + want)
+        total = 1 + 50 + len(payload)
+        check(("EOT after %d bytes echoed" % total) in text, "device counted %d echoed bytes" % total)
+        stamps = [int(x) for x in re.findall(r"^(\d+) ", text, re.M)]
+        if not stamps:
+            stamps = [int(float(x) * 1e6) for x in re.findall(r"^(\d+\.\d+) ", text, re.M)]
+        if stamps:
+            dev = stamps[-1] / 1e6
+            check(0.7 * wall - 0.3 < dev < wall + 0.3,
+                  "device clock: last log at %.2f s, wall %.2f s from QEMU start" % (dev, wall))
+        else:
+            check(False, "defmt timestamps found")
+
+        # --- flow control both ways (pty the host stops reading) ---
+        payload = bytes(rng.choice([b for b in range(256) if b != EOT]) for _ in range(PTY_BYTES))
+        ok, rc, lines = pty_backpressure(elf, tmp, payload, PTY_DELAY)
+        m = re.search(r"rx_stalls: (\d+), tx_waits: (\d+)", "\n".join(lines))
+        stalls, waits = (int(m.group(1)), int(m.group(2))) if m else (0, 0)
+        check(ok and rc == 0, "pty, host reads only after %.1f s: %d bytes echoed intact, exit %d"
+              % (PTY_DELAY, len(payload), rc))
+        check(stalls > 0 and waits > 0, "flow control exercised: RX stalls %d, TX waits %d" % (stalls, waits))
+
+        # --- failure paths ---
+        for arg, code, needle in (("selftest=panic", 101, "panic"), ("selftest=udf", 102, "HardFault")):
+            q = Qemu(elf, tmp, [arg])
+            rc = q.wait()
+            _, lines = q.defmt_lines(elf)
+            check(rc == code and any(needle in l for l in lines),
+                  "%s: exit code %d (want %d), log: %s" % (arg, rc, code, lines[-1] if lines else "-"))
+
+    print("FAILED" if check.failed else "all checks passed")
+    return 1 if check.failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
