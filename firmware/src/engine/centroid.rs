@@ -75,7 +75,13 @@ impl<'a> Centroider<'a> {
         Centroider { parameters }
     }
 
-    pub fn result(&self, index: u16, moments: Moments, width: u16, height: u16) -> SubapertureResult {
+    pub fn result(
+        &self,
+        index: u16,
+        moments: Moments,
+        width: u16,
+        height: u16,
+    ) -> SubapertureResult {
         let flux = moments.sum_w;
         if flux <= self.parameters.min_flux {
             return SubapertureResult {

@@ -297,11 +297,7 @@ impl SelectionState {
             if R::RULE == RuleKind::SubtractNext && p == min {
                 continue; // p <= v(N+1): not kept
             }
-            moments.add(
-                weight(p),
-                position & COLUMN_MASK,
-                position >> COLUMN_BITS,
-            );
+            moments.add(weight(p), position & COLUMN_MASK, position >> COLUMN_BITS);
         }
         if R::KEEPS_TIES && self.tie_count > 0 {
             moments.add_group(weight(min), self.tie_count, self.tie_sum_i, self.tie_sum_j);
