@@ -1,7 +1,8 @@
 //! Stage 1: calibration of raw pixels (SPEC.md §2).
 //!
-//! Applied to one run of consecutive pixels of a camera row at a time, one
-//! pass per configured step, so each pass is a branch-free loop.
+//! Applied to one run of consecutive pixels of a camera row at a time, in a
+//! single branch-free pass: the configured steps are chosen once per run, and
+//! each combination of maps has its own loop.
 
 use brightpix_protocol::Calibration;
 
@@ -20,28 +21,55 @@ impl<'a> Calibrator<'a> {
     /// index) into `out[..raw.len()]`, in 1/16 count.
     #[inline]
     pub fn calibrate(&self, raw: &[u16], first_pixel: usize, out: &mut [i32]) {
-        let out = &mut out[..raw.len()];
-        for (o, &r) in out.iter_mut().zip(raw) {
-            *o = (r as i32) << 4;
+        let c = &self.calibration;
+        match (c.background, c.gain, c.threshold.is_some()) {
+            (None, None, false) => pass::<false, false, false>(c, raw, first_pixel, out),
+            (None, None, true) => pass::<false, false, true>(c, raw, first_pixel, out),
+            (Some(_), None, false) => pass::<true, false, false>(c, raw, first_pixel, out),
+            (Some(_), None, true) => pass::<true, false, true>(c, raw, first_pixel, out),
+            (None, Some(_), false) => pass::<false, true, false>(c, raw, first_pixel, out),
+            (None, Some(_), true) => pass::<false, true, true>(c, raw, first_pixel, out),
+            (Some(_), Some(_), false) => pass::<true, true, false>(c, raw, first_pixel, out),
+            (Some(_), Some(_), true) => pass::<true, true, true>(c, raw, first_pixel, out),
         }
-        let pixels = first_pixel..first_pixel + raw.len();
-        if let Some(background) = self.calibration.background {
-            for (o, &b) in out.iter_mut().zip(&background[pixels.clone()]) {
-                *o -= b;
-            }
+    }
+}
+
+/// One pass doing the steps selected by the flags (which must match the
+/// maps present in `c`).
+#[inline(always)]
+fn pass<const BACKGROUND: bool, const GAIN: bool, const THRESHOLD: bool>(
+    c: &Calibration<'_>,
+    raw: &[u16],
+    first_pixel: usize,
+    out: &mut [i32],
+) {
+    let n = raw.len();
+    let out = &mut out[..n];
+    // Map slices of exactly `n` entries (one bounds check each, per run).
+    let background: &[i32] = match c.background {
+        Some(map) if BACKGROUND => &map[first_pixel..][..n],
+        _ => &[],
+    };
+    let gain: &[u16] = match c.gain {
+        Some(map) if GAIN => &map[first_pixel..][..n],
+        _ => &[],
+    };
+    let threshold = c.threshold.unwrap_or(i32::MIN);
+    for k in 0..n {
+        // 1. d = 16 r - B   (-2^20 <= d < 2^21)
+        let mut d = (raw[k] as i32) << 4;
+        if BACKGROUND {
+            d -= background[k];
         }
-        if let Some(gain) = self.calibration.gain {
-            // |d * G| < 2^37: the product needs 64 bits; the shifted result fits 26.
-            for (o, &g) in out.iter_mut().zip(&gain[pixels]) {
-                *o = ((*o as i64 * g as i64) >> 12) as i32;
-            }
+        // 2. |d * G| < 2^37: the product needs 64 bits; the shifted result fits 26.
+        if GAIN {
+            d = ((d as i64 * gain[k] as i64) >> 12) as i32;
         }
-        if let Some(threshold) = self.calibration.threshold {
-            for o in out.iter_mut() {
-                if *o < threshold {
-                    *o = 0;
-                }
-            }
+        // 3. threshold
+        if THRESHOLD && d < threshold {
+            d = 0;
         }
+        out[k] = d;
     }
 }
