@@ -1,2 +1,4 @@
 //! # brightpix (host)
+pub mod config_file;
+pub mod io;
 pub mod reference;

@@ -1,0 +1,839 @@
+//! Camera frames and calibration maps on disk: NumPy `.npy` and FITS
+//! (primary-HDU image), chosen by file extension.
+//!
+//! - Frames: [`FrameSource`] streams a cube of shape (frames, height, width)
+//!   one frame at a time (seeking in the file, never loading the whole cube
+//!   unless the `.npy` is Fortran-ordered); [`read_frames`] loads it whole.
+//!   A frame is a row-major `Vec<u16>` of raw camera counts.
+//! - Maps and other arrays: [`read_array`] / [`read_map`] return an [`Array`]
+//!   of `f64` in row-major (NumPy) axis order, whatever the stored type.
+//! - Writing: [`write_array`] writes `u8`, `u16`, `i16`, `i32`, `f32` or `f64`
+//!   arrays of any shape to `.npy` or FITS.
+//!
+//! Shapes are always given in NumPy order, slowest axis first: a FITS cube
+//! with `NAXIS1` = width, `NAXIS2` = height, `NAXIS3` = frames has shape
+//! `[frames, height, width]`.
+
+pub mod fits;
+pub mod npy;
+
+use std::fmt;
+use std::fs::File;
+use std::io::{Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+
+use brightpix_protocol::Camera;
+
+/// Why a frame or map file could not be read or written. Every variant names
+/// the file.
+#[derive(Debug, thiserror::Error)]
+pub enum IoError {
+    /// The operating system refused (missing file, permissions, short read).
+    #[error("{}: {error}", path.display())]
+    Io {
+        path: PathBuf,
+        error: std::io::Error,
+    },
+    /// The extension is none of `.npy`, `.fits`, `.fit`, `.fts`.
+    #[error(
+        "{}: unrecognised file type; expected a .npy (NumPy) or .fits/.fit/.fts (FITS) file",
+        path.display()
+    )]
+    UnknownFormat { path: PathBuf },
+    /// The file is not a well-formed `.npy` or FITS file.
+    #[error("{}: {message}", path.display())]
+    Malformed { path: PathBuf, message: String },
+    /// Well-formed, but not the data type or shape that was asked for.
+    #[error("{}: found {found}; expected {expected}", path.display())]
+    Unexpected {
+        path: PathBuf,
+        found: String,
+        expected: String,
+    },
+    /// A frame pixel that is not a raw camera value.
+    #[error(
+        "{}: frame {frame}, row {row}, column {column}: value {value} is outside the {bit_depth}-bit camera range 0..={}",
+        path.display(),
+        (1u32 << bit_depth) - 1
+    )]
+    PixelRange {
+        path: PathBuf,
+        frame: usize,
+        row: usize,
+        column: usize,
+        value: i64,
+        bit_depth: u8,
+    },
+    /// A frame pixel flagged undefined by the FITS `BLANK` keyword.
+    #[error("{}: frame {frame}, row {row}, column {column}: undefined pixel (FITS BLANK)", path.display())]
+    BlankPixel {
+        path: PathBuf,
+        frame: usize,
+        row: usize,
+        column: usize,
+    },
+}
+
+impl IoError {
+    pub(crate) fn io(path: &Path, error: std::io::Error) -> Self {
+        IoError::Io {
+            path: path.to_path_buf(),
+            error,
+        }
+    }
+    pub(crate) fn malformed(path: &Path, message: impl Into<String>) -> Self {
+        IoError::Malformed {
+            path: path.to_path_buf(),
+            message: message.into(),
+        }
+    }
+    pub(crate) fn unexpected(
+        path: &Path,
+        found: impl Into<String>,
+        expected: impl Into<String>,
+    ) -> Self {
+        IoError::Unexpected {
+            path: path.to_path_buf(),
+            found: found.into(),
+            expected: expected.into(),
+        }
+    }
+    /// The file this error is about.
+    pub fn path(&self) -> &Path {
+        match self {
+            IoError::Io { path, .. }
+            | IoError::UnknownFormat { path }
+            | IoError::Malformed { path, .. }
+            | IoError::Unexpected { path, .. }
+            | IoError::PixelRange { path, .. }
+            | IoError::BlankPixel { path, .. } => path,
+        }
+    }
+}
+
+/// File formats, detected by extension (case-insensitive).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FileFormat {
+    /// NumPy `.npy`.
+    Npy,
+    /// FITS `.fits`, `.fit`, `.fts`: the primary HDU's image.
+    Fits,
+}
+
+impl FileFormat {
+    pub fn from_path(path: &Path) -> Result<Self, IoError> {
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        match ext.as_deref() {
+            Some("npy") => Ok(FileFormat::Npy),
+            Some("fits" | "fit" | "fts") => Ok(FileFormat::Fits),
+            _ => Err(IoError::UnknownFormat {
+                path: path.to_path_buf(),
+            }),
+        }
+    }
+}
+
+/// `(2, 3)`-style rendering of a shape, as NumPy prints it.
+pub fn shape_string(shape: &[usize]) -> String {
+    match shape {
+        [one] => format!("({one},)"),
+        _ => {
+            let parts: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
+            format!("({})", parts.join(", "))
+        }
+    }
+}
+
+/// An n-dimensional array of `f64`, row-major, shape slowest axis first.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Array {
+    pub shape: Vec<usize>,
+    pub data: Vec<f64>,
+}
+
+impl Array {
+    /// Number of dimensions.
+    pub fn ndim(&self) -> usize {
+        self.shape.len()
+    }
+}
+
+/// Reads any numeric array (integer or float, any shape) as `f64`.
+/// FITS values have `BSCALE`/`BZERO` applied and `BLANK` pixels become NaN.
+pub fn read_array(path: impl AsRef<Path>) -> Result<Array, IoError> {
+    let path = path.as_ref();
+    match FileFormat::from_path(path)? {
+        FileFormat::Npy => npy::read_array(path),
+        FileFormat::Fits => fits::read_array(path),
+    }
+}
+
+/// Reads a 1-D or 2-D map as `f64`; other dimensionalities are an error.
+pub fn read_map(path: impl AsRef<Path>) -> Result<Array, IoError> {
+    let path = path.as_ref();
+    let array = read_array(path)?;
+    if !(1..=2).contains(&array.ndim()) {
+        return Err(IoError::unexpected(
+            path,
+            format!(
+                "a {}-D array of shape {}",
+                array.ndim(),
+                shape_string(&array.shape)
+            ),
+            "a 1-D or 2-D map",
+        ));
+    }
+    Ok(array)
+}
+
+mod sealed {
+    pub trait Sealed {}
+}
+
+/// Element types that can be written: `u8`, `u16`, `i16`, `i32`, `f32`, `f64`.
+/// In FITS, `u16` is written as BITPIX 16 with `BZERO = 32768` (the
+/// astronomy convention for unsigned 16-bit data).
+pub trait Element: npyz::AutoSerialize + Copy + sealed::Sealed {
+    /// FITS BITPIX of this type.
+    const BITPIX: i32;
+    /// FITS BZERO needed to store this type, if any.
+    const BZERO: Option<i64> = None;
+    /// Appends the FITS (big-endian, BZERO-offset) encoding.
+    fn put_fits(self, out: &mut Vec<u8>);
+}
+
+macro_rules! element {
+    ($t:ty, $bitpix:expr) => {
+        impl sealed::Sealed for $t {}
+        impl Element for $t {
+            const BITPIX: i32 = $bitpix;
+            fn put_fits(self, out: &mut Vec<u8>) {
+                out.extend_from_slice(&self.to_be_bytes());
+            }
+        }
+    };
+}
+element!(u8, 8);
+element!(i16, 16);
+element!(i32, 32);
+element!(f32, -32);
+element!(f64, -64);
+
+impl sealed::Sealed for u16 {}
+impl Element for u16 {
+    const BITPIX: i32 = 16;
+    const BZERO: Option<i64> = Some(32768);
+    fn put_fits(self, out: &mut Vec<u8>) {
+        // stored = value - 32768, as i16: flipping the top bit does exactly that.
+        out.extend_from_slice(&(self ^ 0x8000).to_be_bytes());
+    }
+}
+
+/// Writes `data` (row-major, `shape` slowest axis first) as `.npy` or FITS
+/// by the extension of `path`.
+pub fn write_array<T: Element>(
+    path: impl AsRef<Path>,
+    shape: &[usize],
+    data: &[T],
+) -> Result<(), IoError> {
+    let path = path.as_ref();
+    let format = FileFormat::from_path(path)?;
+    let expected: usize = shape.iter().product();
+    if expected != data.len() {
+        return Err(IoError::unexpected(
+            path,
+            format!("{} values to write", data.len()),
+            format!("{expected} values for shape {}", shape_string(shape)),
+        ));
+    }
+    match format {
+        FileFormat::Npy => npy::write(path, shape, data),
+        FileFormat::Fits => fits::write(path, shape, data),
+    }
+}
+
+/// Size of a frame cube, in NumPy axis order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrameShape {
+    pub frames: usize,
+    pub height: usize,
+    pub width: usize,
+}
+
+impl FrameShape {
+    pub fn pixels_per_frame(&self) -> usize {
+        self.width * self.height
+    }
+}
+
+impl fmt::Display for FrameShape {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "{} frame(s) of {}x{} (width x height)",
+            self.frames, self.width, self.height
+        )
+    }
+}
+
+/// How the raw bytes of one frame become `u16` pixels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Encoding {
+    /// One unsigned byte per pixel.
+    U8,
+    /// Unsigned 16-bit.
+    U16 { big_endian: bool },
+    /// FITS integer data (big-endian, signed): physical = raw + zero.
+    FitsInt {
+        bytes: usize,
+        zero: i64,
+        blank: Option<i64>,
+    },
+}
+
+impl Encoding {
+    pub(crate) fn bytes_per_pixel(&self) -> usize {
+        match self {
+            Encoding::U8 => 1,
+            Encoding::U16 { .. } => 2,
+            Encoding::FitsInt { bytes, .. } => *bytes,
+        }
+    }
+}
+
+/// Where the frames are in an opened file.
+pub(crate) struct FrameLayout {
+    pub shape: FrameShape,
+    pub data_offset: u64,
+    pub encoding: Encoding,
+    /// The whole cube, already decoded, when it cannot be read frame by frame
+    /// (a Fortran-ordered `.npy`).
+    pub preloaded: Option<Vec<u16>>,
+}
+
+/// Frames from a `.npy` or FITS file, one at a time.
+///
+/// Accepted data: `.npy` of dtype uint8 or uint16 (either byte order), FITS
+/// of integer BITPIX (8, 16, 32, 64) with `BSCALE = 1` and an integer `BZERO`
+/// (BITPIX 16 + `BZERO = 32768` is unsigned 16-bit), shape
+/// (frames, height, width) or a single (height, width) frame. Each pixel must
+/// be in `0..=65535`, and with [`FrameSource::open_for_camera`] in
+/// `0..2^bit_depth`.
+pub struct FrameSource {
+    path: PathBuf,
+    file: File,
+    layout: FrameLayout,
+    camera: Option<Camera>,
+    next: usize,
+    buffer: Vec<u8>,
+}
+
+impl fmt::Debug for FrameSource {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("FrameSource")
+            .field("path", &self.path)
+            .field("shape", &self.layout.shape)
+            .field("next", &self.next)
+            .finish()
+    }
+}
+
+impl FrameSource {
+    /// Opens a frame file and reads its header; no pixels are read yet.
+    pub fn open(path: impl AsRef<Path>) -> Result<Self, IoError> {
+        let path = path.as_ref();
+        let format = FileFormat::from_path(path)?;
+        let mut file = File::open(path).map_err(|e| IoError::io(path, e))?;
+        let layout = match format {
+            FileFormat::Npy => npy::frame_layout(path, &mut file)?,
+            FileFormat::Fits => fits::frame_layout(path, &mut file)?,
+        };
+        if layout.preloaded.is_none() {
+            let needed = layout.data_offset
+                + (layout.shape.frames * layout.shape.pixels_per_frame()) as u64
+                    * layout.encoding.bytes_per_pixel() as u64;
+            let len = file.metadata().map_err(|e| IoError::io(path, e))?.len();
+            if len < needed {
+                return Err(IoError::malformed(
+                    path,
+                    format!(
+                        "file is truncated: {} needs {needed} bytes, the file has {len}",
+                        layout.shape
+                    ),
+                ));
+            }
+        }
+        Ok(FrameSource {
+            path: path.to_path_buf(),
+            file,
+            layout,
+            camera: None,
+            next: 0,
+            buffer: Vec::new(),
+        })
+    }
+
+    /// Opens a frame file for `camera`: the frame size must be the camera's,
+    /// and every frame read is checked against the camera's bit depth.
+    pub fn open_for_camera(path: impl AsRef<Path>, camera: &Camera) -> Result<Self, IoError> {
+        let mut source = Self::open(path)?;
+        source.set_camera(camera)?;
+        Ok(source)
+    }
+
+    /// Checks the frame size against `camera` and, from now on, every pixel
+    /// read against its bit depth.
+    pub fn set_camera(&mut self, camera: &Camera) -> Result<(), IoError> {
+        let s = self.layout.shape;
+        if s.width != camera.width as usize || s.height != camera.height as usize {
+            return Err(IoError::unexpected(
+                &self.path,
+                format!("frames of {}x{} (width x height)", s.width, s.height),
+                format!(
+                    "{}x{} frames, the configured camera size",
+                    camera.width, camera.height
+                ),
+            ));
+        }
+        self.camera = Some(*camera);
+        Ok(())
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    pub fn shape(&self) -> FrameShape {
+        self.layout.shape
+    }
+
+    /// Number of frames in the file.
+    pub fn len(&self) -> usize {
+        self.layout.shape.frames
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Reads frame `index` (0-based) into `out`, replacing its contents.
+    pub fn read_frame_into(&mut self, index: usize, out: &mut Vec<u16>) -> Result<(), IoError> {
+        let shape = self.layout.shape;
+        if index >= shape.frames {
+            return Err(IoError::unexpected(
+                &self.path,
+                format!("a request for frame {index}"),
+                format!("a frame index below {}", shape.frames),
+            ));
+        }
+        let n = shape.pixels_per_frame();
+        out.clear();
+        if let Some(all) = &self.layout.preloaded {
+            out.extend_from_slice(&all[index * n..(index + 1) * n]);
+        } else {
+            let bpp = self.layout.encoding.bytes_per_pixel();
+            let offset = self.layout.data_offset + (index * n * bpp) as u64;
+            self.buffer.resize(n * bpp, 0);
+            self.file
+                .seek(SeekFrom::Start(offset))
+                .and_then(|_| self.file.read_exact(&mut self.buffer))
+                .map_err(|e| IoError::io(&self.path, e))?;
+            decode(&self.buffer, self.layout.encoding, out).map_err(|(pixel, problem)| {
+                pixel_error(&self.path, index, shape.width, pixel, problem)
+            })?;
+        }
+        if let Some(camera) = &self.camera {
+            check_frame(&self.path, index, shape.width, out, camera)?;
+        }
+        Ok(())
+    }
+
+    /// Reads frame `index` (0-based).
+    pub fn read_frame(&mut self, index: usize) -> Result<Vec<u16>, IoError> {
+        let mut out = Vec::with_capacity(self.layout.shape.pixels_per_frame());
+        self.read_frame_into(index, &mut out)?;
+        Ok(out)
+    }
+
+    /// Reads all remaining frames into one cube.
+    pub fn read_all(mut self) -> Result<FrameCube, IoError> {
+        let shape = self.layout.shape;
+        let mut pixels = Vec::with_capacity(shape.frames * shape.pixels_per_frame());
+        let mut frame = Vec::new();
+        for index in 0..shape.frames {
+            self.read_frame_into(index, &mut frame)?;
+            pixels.extend_from_slice(&frame);
+        }
+        Ok(FrameCube { shape, pixels })
+    }
+}
+
+/// Frames in order; after an error the iteration goes on with the next frame.
+impl Iterator for FrameSource {
+    type Item = Result<Vec<u16>, IoError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.next >= self.layout.shape.frames {
+            return None;
+        }
+        let index = self.next;
+        self.next += 1;
+        Some(self.read_frame(index))
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        let left = self.layout.shape.frames - self.next;
+        (left, Some(left))
+    }
+}
+
+impl ExactSizeIterator for FrameSource {}
+
+/// A whole cube of frames in memory, row-major.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct FrameCube {
+    pub shape: FrameShape,
+    /// `frames * height * width` raw pixels.
+    pub pixels: Vec<u16>,
+}
+
+impl FrameCube {
+    /// Frame `index` (0-based). Panics if out of range.
+    pub fn frame(&self, index: usize) -> &[u16] {
+        let n = self.shape.pixels_per_frame();
+        &self.pixels[index * n..(index + 1) * n]
+    }
+
+    pub fn frames(&self) -> impl Iterator<Item = &[u16]> {
+        self.pixels
+            .chunks_exact(self.shape.pixels_per_frame().max(1))
+    }
+
+    /// Writes the cube as uint16 `.npy` or FITS (BITPIX 16, BZERO 32768).
+    pub fn write(&self, path: impl AsRef<Path>) -> Result<(), IoError> {
+        let s = self.shape;
+        write_array(path, &[s.frames, s.height, s.width], &self.pixels)
+    }
+}
+
+/// Loads every frame of a `.npy` or FITS file.
+pub fn read_frames(path: impl AsRef<Path>) -> Result<FrameCube, IoError> {
+    FrameSource::open(path)?.read_all()
+}
+
+/// Loads every frame, checking size and bit depth against `camera`.
+pub fn read_frames_for_camera(
+    path: impl AsRef<Path>,
+    camera: &Camera,
+) -> Result<FrameCube, IoError> {
+    FrameSource::open_for_camera(path, camera)?.read_all()
+}
+
+/// Checks a frame's pixels against the camera's bit depth: the first value
+/// `>= 2^bit_depth` is an error naming frame, row, column and value. `path`
+/// only names the source in the error.
+pub fn check_frame(
+    path: &Path,
+    frame_index: usize,
+    width: usize,
+    frame: &[u16],
+    camera: &Camera,
+) -> Result<(), IoError> {
+    let max = camera.max_raw();
+    match frame.iter().position(|&v| v > max) {
+        None => Ok(()),
+        Some(pixel) => Err(IoError::PixelRange {
+            path: path.to_path_buf(),
+            frame: frame_index,
+            row: pixel / width.max(1),
+            column: pixel % width.max(1),
+            value: frame[pixel] as i64,
+            bit_depth: camera.bit_depth,
+        }),
+    }
+}
+
+/// What is wrong with a decoded pixel.
+#[derive(Debug)]
+pub(crate) enum PixelProblem {
+    Range(i64),
+    Blank,
+}
+
+fn pixel_error(
+    path: &Path,
+    frame: usize,
+    width: usize,
+    pixel: usize,
+    problem: PixelProblem,
+) -> IoError {
+    let (row, column) = (pixel / width.max(1), pixel % width.max(1));
+    match problem {
+        PixelProblem::Range(value) => IoError::PixelRange {
+            path: path.to_path_buf(),
+            frame,
+            row,
+            column,
+            value,
+            bit_depth: 16,
+        },
+        PixelProblem::Blank => IoError::BlankPixel {
+            path: path.to_path_buf(),
+            frame,
+            row,
+            column,
+        },
+    }
+}
+
+/// Decodes one frame's bytes; on failure, the pixel index and the problem.
+pub(crate) fn decode(
+    bytes: &[u8],
+    encoding: Encoding,
+    out: &mut Vec<u16>,
+) -> Result<(), (usize, PixelProblem)> {
+    out.clear();
+    match encoding {
+        Encoding::U8 => out.extend(bytes.iter().map(|&b| b as u16)),
+        Encoding::U16 { big_endian: false } => out.extend(
+            bytes
+                .chunks_exact(2)
+                .map(|b| u16::from_le_bytes([b[0], b[1]])),
+        ),
+        Encoding::U16 { big_endian: true } => out.extend(
+            bytes
+                .chunks_exact(2)
+                .map(|b| u16::from_be_bytes([b[0], b[1]])),
+        ),
+        Encoding::FitsInt {
+            bytes: 2,
+            zero: 32768,
+            blank: None,
+        } => out.extend(
+            bytes
+                .chunks_exact(2)
+                .map(|b| u16::from_be_bytes([b[0], b[1]]) ^ 0x8000),
+        ),
+        Encoding::FitsInt {
+            bytes: size,
+            zero,
+            blank,
+        } => {
+            for (index, chunk) in bytes.chunks_exact(size).enumerate() {
+                let raw = fits::be_int(chunk);
+                if blank == Some(raw) {
+                    return Err((index, PixelProblem::Blank));
+                }
+                let value = raw as i128 + zero as i128;
+                if !(0..=u16::MAX as i128).contains(&value) {
+                    let clamped = value.clamp(i64::MIN as i128, i64::MAX as i128) as i64;
+                    return Err((index, PixelProblem::Range(clamped)));
+                }
+                out.push(value as u16);
+            }
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+pub(crate) mod test_util {
+    use std::path::PathBuf;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    /// A fresh empty directory under the system temp dir.
+    pub fn temp_dir(tag: &str) -> PathBuf {
+        static COUNTER: AtomicUsize = AtomicUsize::new(0);
+        let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+        let dir =
+            std::env::temp_dir().join(format!("brightpix-test-{}-{tag}-{n}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::test_util::temp_dir;
+    use super::*;
+
+    fn camera(width: u16, height: u16, bit_depth: u8) -> Camera {
+        Camera {
+            width,
+            height,
+            bit_depth,
+        }
+    }
+
+    fn ramp_u16(n: usize) -> Vec<u16> {
+        (0..n)
+            .map(|i| (i as u64 * 2654435761 % 65536) as u16)
+            .collect()
+    }
+
+    #[test]
+    fn format_by_extension() {
+        assert_eq!(
+            FileFormat::from_path(Path::new("a/b.npy")).unwrap(),
+            FileFormat::Npy
+        );
+        for name in ["x.fits", "x.FITS", "x.fit", "x.fts"] {
+            assert_eq!(
+                FileFormat::from_path(Path::new(name)).unwrap(),
+                FileFormat::Fits
+            );
+        }
+        for name in ["x.txt", "x", "x.fits.gz", "x.npz"] {
+            let err = FileFormat::from_path(Path::new(name)).unwrap_err();
+            assert!(matches!(err, IoError::UnknownFormat { .. }), "{name}");
+            let msg = err.to_string();
+            assert!(
+                msg.contains(name) && msg.contains(".npy") && msg.contains(".fits"),
+                "{msg}"
+            );
+        }
+    }
+
+    #[test]
+    fn frames_round_trip_u16_and_u8_both_formats() {
+        let dir = temp_dir("frames");
+        let shape = FrameShape {
+            frames: 3,
+            height: 5,
+            width: 7,
+        };
+        let pixels = ramp_u16(3 * 5 * 7);
+        let cube = FrameCube {
+            shape,
+            pixels: pixels.clone(),
+        };
+        for ext in ["npy", "fits"] {
+            let path = dir.join(format!("cube16.{ext}"));
+            cube.write(&path).unwrap();
+            assert_eq!(read_frames(&path).unwrap(), cube, "{ext}");
+            // streaming, out of order, and as an iterator
+            let mut source = FrameSource::open(&path).unwrap();
+            assert_eq!(source.shape(), shape);
+            assert_eq!(source.read_frame(2).unwrap(), cube.frame(2));
+            assert_eq!(source.read_frame(0).unwrap(), cube.frame(0));
+            let frames: Vec<Vec<u16>> = source.map(|f| f.unwrap()).collect();
+            assert_eq!(frames.len(), 3);
+            assert_eq!(frames[1], cube.frame(1));
+
+            let bytes: Vec<u8> = pixels.iter().map(|&v| v as u8).collect();
+            let path = dir.join(format!("cube8.{ext}"));
+            write_array(&path, &[3, 5, 7], &bytes).unwrap();
+            let back = read_frames(&path).unwrap();
+            assert_eq!(back.shape, shape);
+            assert!(back.pixels.iter().zip(&bytes).all(|(&a, &b)| a == b as u16));
+        }
+    }
+
+    #[test]
+    fn single_2d_frame_is_one_frame() {
+        let dir = temp_dir("single");
+        let data = ramp_u16(4 * 6);
+        for ext in ["npy", "fits"] {
+            let path = dir.join(format!("one.{ext}"));
+            write_array(&path, &[4, 6], &data).unwrap();
+            let cube = read_frames(&path).unwrap();
+            assert_eq!(
+                cube.shape,
+                FrameShape {
+                    frames: 1,
+                    height: 4,
+                    width: 6
+                }
+            );
+            assert_eq!(cube.pixels, data);
+        }
+    }
+
+    #[test]
+    fn frames_checked_against_camera() {
+        let dir = temp_dir("camera");
+        let mut data = vec![100u16; 2 * 3 * 4];
+        data[12 + 4 + 2] = 4096; // frame 1, row 1, column 2
+        for ext in ["npy", "fits"] {
+            let path = dir.join(format!("f.{ext}"));
+            write_array(&path, &[2, 3, 4], &data).unwrap();
+            // 16-bit camera: fine
+            read_frames_for_camera(&path, &camera(4, 3, 16)).unwrap();
+            // 12-bit camera: 4096 is out of range
+            let err = read_frames_for_camera(&path, &camera(4, 3, 12)).unwrap_err();
+            match &err {
+                IoError::PixelRange {
+                    frame: 1,
+                    row: 1,
+                    column: 2,
+                    value: 4096,
+                    bit_depth: 12,
+                    ..
+                } => {}
+                other => panic!("{other:?}"),
+            }
+            let msg = err.to_string();
+            assert!(
+                msg.contains("frame 1, row 1, column 2: value 4096"),
+                "{msg}"
+            );
+            assert!(msg.contains("0..=4095"), "{msg}");
+            // frame 0 is still readable
+            let mut source = FrameSource::open_for_camera(&path, &camera(4, 3, 12)).unwrap();
+            source.read_frame(0).unwrap();
+            // wrong size
+            let err = FrameSource::open_for_camera(&path, &camera(3, 4, 16)).unwrap_err();
+            assert!(matches!(err, IoError::Unexpected { .. }), "{err}");
+            assert!(err.to_string().contains("4x3"), "{err}");
+        }
+    }
+
+    #[test]
+    fn truncated_cube_is_an_error() {
+        let dir = temp_dir("trunc");
+        for ext in ["npy", "fits"] {
+            let path = dir.join(format!("t.{ext}"));
+            write_array(&path, &[4, 30, 30], &vec![1u16; 3600]).unwrap();
+            let len = std::fs::metadata(&path).unwrap().len();
+            let file = std::fs::OpenOptions::new().write(true).open(&path).unwrap();
+            file.set_len(len - 3000).unwrap();
+            let err = FrameSource::open(&path).unwrap_err();
+            assert!(err.to_string().contains("truncated"), "{err}");
+        }
+    }
+
+    #[test]
+    fn read_map_rejects_3d() {
+        let dir = temp_dir("map3d");
+        let path = dir.join("m.npy");
+        write_array(&path, &[2, 2, 2], &[0.0f64; 8]).unwrap();
+        let err = read_map(&path).unwrap_err();
+        let msg = err.to_string();
+        assert!(
+            msg.contains("(2, 2, 2)") && msg.contains("1-D or 2-D"),
+            "{msg}"
+        );
+        assert_eq!(read_array(&path).unwrap().shape, vec![2, 2, 2]);
+    }
+
+    #[test]
+    fn write_checks_length() {
+        let dir = temp_dir("len");
+        let err = write_array(dir.join("x.npy"), &[2, 3], &[1.0f64; 5]).unwrap_err();
+        assert!(err.to_string().contains("6 values"), "{err}");
+    }
+
+    #[test]
+    fn missing_file_names_path() {
+        let err = read_array("/nonexistent/dir/bg.fits").unwrap_err();
+        assert!(matches!(err, IoError::Io { .. }));
+        assert!(
+            err.to_string().contains("/nonexistent/dir/bg.fits"),
+            "{err}"
+        );
+    }
+}

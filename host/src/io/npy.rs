@@ -1,0 +1,335 @@
+//! NumPy `.npy` files through the `npyz` crate.
+//!
+//! Reading accepts format versions 1-3, both byte orders, C or Fortran order.
+//! Writing always produces C-ordered little-endian version-1 files.
+
+use std::fs::File;
+use std::io::{BufReader, BufWriter, Seek};
+use std::path::Path;
+
+use npyz::{DType, NpyFile, NpyHeader, Order, TypeChar, WriterBuilder};
+
+use super::{shape_string, Array, Element, Encoding, FrameLayout, FrameShape, IoError};
+
+fn header_error(path: &Path, e: std::io::Error) -> IoError {
+    if e.kind() == std::io::ErrorKind::UnexpectedEof || e.kind() == std::io::ErrorKind::InvalidData
+    {
+        IoError::malformed(path, format!("not a readable NumPy .npy file: {e}"))
+    } else {
+        IoError::io(path, e)
+    }
+}
+
+fn shape_of(header: &NpyHeader) -> Vec<usize> {
+    header.shape().iter().map(|&d| d as usize).collect()
+}
+
+/// `uint16 ('<u2')`-style description of a dtype.
+fn describe_dtype(dtype: &DType) -> String {
+    match dtype {
+        DType::Plain(ts) => {
+            let name = match ts.type_char() {
+                TypeChar::Bool => "bool".to_string(),
+                TypeChar::Int => format!("int{}", ts.size_field() * 8),
+                TypeChar::Uint => format!("uint{}", ts.size_field() * 8),
+                TypeChar::Float => format!("float{}", ts.size_field() * 8),
+                TypeChar::Complex => format!("complex{}", ts.size_field() * 8),
+                _ => "non-numeric".to_string(),
+            };
+            format!("{name} ('{ts}')")
+        }
+        other => format!("a structured dtype ({})", other.descr()),
+    }
+}
+
+/// Element (i0, .., in-1) of a Fortran-ordered array is at
+/// `i0 + n0 * (i1 + n1 * (...))`; returns the data in C order.
+pub(crate) fn fortran_to_c<T: Copy>(data: &[T], shape: &[usize]) -> Vec<T> {
+    if shape.len() <= 1 {
+        return data.to_vec();
+    }
+    let ndim = shape.len();
+    // Fortran strides.
+    let mut strides = vec![1usize; ndim];
+    for k in 1..ndim {
+        strides[k] = strides[k - 1] * shape[k - 1];
+    }
+    let total: usize = shape.iter().product();
+    let mut out = Vec::with_capacity(total);
+    let mut index = vec![0usize; ndim];
+    for _ in 0..total {
+        let offset: usize = index.iter().zip(&strides).map(|(i, s)| i * s).sum();
+        out.push(data[offset]);
+        // increment the C-order multi-index (last axis fastest)
+        for k in (0..ndim).rev() {
+            index[k] += 1;
+            if index[k] < shape[k] {
+                break;
+            }
+            index[k] = 0;
+        }
+    }
+    out
+}
+
+/// Reads any integer or float `.npy` array as `f64`, in C order.
+pub fn read_array(path: &Path) -> Result<Array, IoError> {
+    let file = File::open(path).map_err(|e| IoError::io(path, e))?;
+    let npy = NpyFile::new(BufReader::new(file)).map_err(|e| header_error(path, e))?;
+    let shape = shape_of(npy.header());
+    let order = npy.header().order();
+    let dtype = npy.header().dtype();
+    let unsupported = || {
+        IoError::unexpected(
+            path,
+            format!("dtype {}", describe_dtype(&dtype)),
+            "an integer or floating-point array",
+        )
+    };
+    let ts = match &dtype {
+        DType::Plain(ts) => ts.clone(),
+        _ => return Err(unsupported()),
+    };
+    macro_rules! read_as {
+        ($t:ty) => {
+            npy.into_vec::<$t>()
+                .map_err(|e| header_error(path, e))?
+                .into_iter()
+                .map(|v| v as f64)
+                .collect::<Vec<f64>>()
+        };
+    }
+    let data: Vec<f64> = match (ts.type_char(), ts.size_field()) {
+        (TypeChar::Float, 8) => read_as!(f64),
+        (TypeChar::Float, 4) => read_as!(f32),
+        (TypeChar::Int, 1) => read_as!(i8),
+        (TypeChar::Int, 2) => read_as!(i16),
+        (TypeChar::Int, 4) => read_as!(i32),
+        (TypeChar::Int, 8) => read_as!(i64),
+        (TypeChar::Uint, 1) => read_as!(u8),
+        (TypeChar::Uint, 2) => read_as!(u16),
+        (TypeChar::Uint, 4) => read_as!(u32),
+        (TypeChar::Uint, 8) => read_as!(u64),
+        _ => return Err(unsupported()),
+    };
+    let data = match order {
+        Order::C => data,
+        Order::Fortran => fortran_to_c(&data, &shape),
+    };
+    Ok(Array { shape, data })
+}
+
+/// Locates the frames of a uint8/uint16 `.npy` of shape (frames, height,
+/// width) or (height, width).
+pub(crate) fn frame_layout(path: &Path, file: &mut File) -> Result<FrameLayout, IoError> {
+    let header = NpyHeader::from_reader(&mut *file).map_err(|e| header_error(path, e))?;
+    let data_offset = file.stream_position().map_err(|e| IoError::io(path, e))?;
+    let dims = shape_of(&header);
+    let dtype = header.dtype();
+    let expected = "a uint8 or uint16 array of shape (frames, height, width) or (height, width)";
+    let found = || {
+        format!(
+            "dtype {} with shape {}",
+            describe_dtype(&dtype),
+            shape_string(&dims)
+        )
+    };
+    let encoding = match &dtype {
+        DType::Plain(ts) => match (ts.type_char(), ts.size_field()) {
+            (TypeChar::Uint, 1) => Encoding::U8,
+            (TypeChar::Uint, 2) => Encoding::U16 {
+                big_endian: ts.endianness() == npyz::Endianness::Big,
+            },
+            _ => return Err(IoError::unexpected(path, found(), expected)),
+        },
+        _ => return Err(IoError::unexpected(path, found(), expected)),
+    };
+    let shape = match dims[..] {
+        [frames, height, width] => FrameShape {
+            frames,
+            height,
+            width,
+        },
+        [height, width] => FrameShape {
+            frames: 1,
+            height,
+            width,
+        },
+        _ => return Err(IoError::unexpected(path, found(), expected)),
+    };
+    let preloaded = if header.order() == Order::Fortran && dims.len() > 1 {
+        // Not contiguous per frame: load and reorder the whole cube.
+        let npy = NpyFile::with_header(header, BufReader::new(&mut *file));
+        let raw: Vec<u16> = match encoding {
+            Encoding::U8 => npy
+                .into_vec::<u8>()
+                .map_err(|e| header_error(path, e))?
+                .into_iter()
+                .map(u16::from)
+                .collect(),
+            _ => npy.into_vec::<u16>().map_err(|e| header_error(path, e))?,
+        };
+        Some(fortran_to_c(&raw, &dims))
+    } else {
+        None
+    };
+    Ok(FrameLayout {
+        shape,
+        data_offset,
+        encoding,
+        preloaded,
+    })
+}
+
+/// Writes a C-ordered `.npy` of the element type's native NumPy dtype.
+pub fn write<T: Element>(path: &Path, shape: &[usize], data: &[T]) -> Result<(), IoError> {
+    let file = File::create(path).map_err(|e| IoError::io(path, e))?;
+    let shape: Vec<u64> = shape.iter().map(|&d| d as u64).collect();
+    let result = (|| {
+        let mut writer = npyz::WriteOptions::new()
+            .default_dtype()
+            .shape(&shape)
+            .writer(BufWriter::new(file))
+            .begin_nd()?;
+        writer.extend(data.iter().copied())?;
+        writer.finish()
+    })();
+    result.map_err(|e| IoError::io(path, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::test_util::temp_dir;
+    use super::super::{read_array, read_frames, write_array, FrameSource};
+    use super::*;
+
+    /// A hand-made .npy (version 1) with the given descr, order and shape.
+    fn raw_npy(descr: &str, fortran: bool, shape: &str, data: &[u8]) -> Vec<u8> {
+        let mut dict = format!(
+            "{{'descr': '{descr}', 'fortran_order': {}, 'shape': {shape}, }}",
+            if fortran { "True" } else { "False" }
+        );
+        while (10 + dict.len() + 1) % 64 != 0 {
+            dict.push(' ');
+        }
+        dict.push('\n');
+        let mut out = b"\x93NUMPY\x01\x00".to_vec();
+        out.extend_from_slice(&(dict.len() as u16).to_le_bytes());
+        out.extend_from_slice(dict.as_bytes());
+        out.extend_from_slice(data);
+        out
+    }
+
+    #[test]
+    fn f64_round_trip_any_shape() {
+        let dir = temp_dir("npyf64");
+        let path = dir.join("slopes.npy");
+        let data: Vec<f64> = (0..24).map(|i| i as f64 * 0.25 - 3.0).collect();
+        write_array(&path, &[2, 6, 2], &data).unwrap();
+        let back = read_array(&path).unwrap();
+        assert_eq!(back.shape, vec![2, 6, 2]);
+        assert_eq!(back.data, data);
+    }
+
+    #[test]
+    fn integer_and_f32_maps_read_as_f64() {
+        let dir = temp_dir("npyint");
+        let path = dir.join("w.npy");
+        write_array(&path, &[2, 2], &[1i32, -2, 3, 40000]).unwrap();
+        assert_eq!(
+            read_array(&path).unwrap().data,
+            vec![1.0, -2.0, 3.0, 40000.0]
+        );
+        write_array(&path, &[3], &[0.5f32, 1.5, -2.0]).unwrap();
+        let back = read_array(&path).unwrap();
+        assert_eq!(back.shape, vec![3]);
+        assert_eq!(back.data, vec![0.5, 1.5, -2.0]);
+        write_array(&path, &[2], &[7u16, 65535]).unwrap();
+        assert_eq!(read_array(&path).unwrap().data, vec![7.0, 65535.0]);
+    }
+
+    #[test]
+    fn big_endian_uint16_frames() {
+        let dir = temp_dir("npybe");
+        let path = dir.join("be.npy");
+        let values: [u16; 6] = [1, 2, 300, 40000, 5, 65535];
+        let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_be_bytes()).collect();
+        std::fs::write(&path, raw_npy(">u2", false, "(1, 2, 3)", &bytes)).unwrap();
+        let cube = read_frames(&path).unwrap();
+        assert_eq!(cube.pixels, values);
+        assert_eq!(read_array(&path).unwrap().data[3], 40000.0);
+    }
+
+    #[test]
+    fn fortran_order_is_reordered() {
+        let dir = temp_dir("npyf");
+        let path = dir.join("f.npy");
+        // C-order [[1,2,3],[4,5,6]] stored column-major: 1,4,2,5,3,6
+        let stored: [u16; 6] = [1, 4, 2, 5, 3, 6];
+        let bytes: Vec<u8> = stored.iter().flat_map(|v| v.to_le_bytes()).collect();
+        std::fs::write(&path, raw_npy("<u2", true, "(2, 3)", &bytes)).unwrap();
+        assert_eq!(read_frames(&path).unwrap().pixels, vec![1, 2, 3, 4, 5, 6]);
+        assert_eq!(
+            read_array(&path).unwrap().data,
+            vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
+        );
+        // 3-D
+        let shape = [2, 3, 4];
+        let c: Vec<usize> = (0..24).collect();
+        let mut f = vec![0usize; 24];
+        for i in 0..2 {
+            for j in 0..3 {
+                for k in 0..4 {
+                    f[i + 2 * (j + 3 * k)] = c[(i * 3 + j) * 4 + k];
+                }
+            }
+        }
+        assert_eq!(fortran_to_c(&f, &shape), c);
+    }
+
+    #[test]
+    fn wrong_frame_dtype_and_shape_are_named() {
+        let dir = temp_dir("npywrong");
+        let path = dir.join("bad.npy");
+        write_array(&path, &[2, 3, 4], &[0.0f32; 24]).unwrap();
+        let msg = FrameSource::open(&path).unwrap_err().to_string();
+        assert!(msg.contains("bad.npy"), "{msg}");
+        assert!(msg.contains("float32 ('<f4')"), "{msg}");
+        assert!(msg.contains("(2, 3, 4)"), "{msg}");
+        assert!(msg.contains("expected a uint8 or uint16 array"), "{msg}");
+
+        write_array(&path, &[2, 3, 4], &[0i16; 24]).unwrap();
+        let msg = FrameSource::open(&path).unwrap_err().to_string();
+        assert!(msg.contains("int16 ('<i2')"), "{msg}");
+
+        write_array(&path, &[1, 2, 3, 4], &[0u16; 24]).unwrap();
+        let msg = FrameSource::open(&path).unwrap_err().to_string();
+        assert!(
+            msg.contains("uint16 ('<u2') with shape (1, 2, 3, 4)"),
+            "{msg}"
+        );
+
+        write_array(&path, &[24], &[0u8; 24]).unwrap();
+        let msg = FrameSource::open(&path).unwrap_err().to_string();
+        assert!(msg.contains("shape (24,)"), "{msg}");
+    }
+
+    #[test]
+    fn non_numeric_and_garbage_rejected() {
+        let dir = temp_dir("npygarbage");
+        let path = dir.join("b.npy");
+        std::fs::write(&path, raw_npy("|b1", false, "(2,)", &[0, 1])).unwrap();
+        let msg = read_array(&path).unwrap_err().to_string();
+        assert!(
+            msg.contains("bool") && msg.contains("integer or floating-point"),
+            "{msg}"
+        );
+        std::fs::write(&path, b"SIMPLE  = T this is not npy").unwrap();
+        let err = read_array(&path).unwrap_err();
+        assert!(matches!(err, IoError::Malformed { .. }), "{err}");
+        assert!(
+            err.to_string().contains("not a readable NumPy .npy file"),
+            "{err}"
+        );
+    }
+}
