@@ -1,3 +1,4 @@
 //! # brightpix-firmware
 #![no_std]
+pub mod device;
 pub mod engine;

@@ -7,6 +7,7 @@
 //! [`Config::validate`] checks every bound that SPEC.md relies on, so a
 //! configuration that passes cannot overflow the arithmetic.
 
+use postcard_schema::Schema;
 use serde::{Deserialize, Serialize};
 
 /// Largest camera side, in pixels.
@@ -33,7 +34,7 @@ pub const SLOPE_FRACTION_BITS: u32 = 16;
 pub const LEVEL_FILTER_FRACTION_BITS: u32 = 8;
 
 /// The camera: frame size and the bit depth of its raw pixels.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
 pub struct Camera {
     pub width: u16,
     pub height: u16,
@@ -56,7 +57,7 @@ impl Camera {
 
 /// One sub-aperture: a rectangle of camera pixels, `x`/`y` its top-left
 /// corner (column, row), inclusive.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, Schema)]
 pub struct SubapertureWindow {
     pub x: u16,
     pub y: u16,
@@ -80,7 +81,7 @@ impl SubapertureWindow {
 
 /// How a sub-aperture's pixels are weighted after ranking (SPEC.md §3).
 /// `v(k)` is the k-th largest calibrated value, duplicates counted.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
 pub enum SelectionRule {
     /// Keep `p >= v(N)`, weight `p` (the paper's selection without subtraction).
     Threshold,
@@ -105,7 +106,7 @@ impl SelectionRule {
 /// Temporal filtering of the subtracted level, per sub-aperture (SPEC.md §4):
 /// `s += (level * 256 - s) >> gain_shift`, i.e. an exponential average with
 /// gain `2^-gain_shift`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
 pub struct LevelFilter {
     /// 1..=16.
     pub gain_shift: u8,
@@ -181,36 +182,76 @@ pub struct Config<'a> {
 /// Why a configuration was refused. Each names the offending item.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum ConfigError {
-    CameraSize { width: u16, height: u16 },
-    BitDepth { bit_depth: u8 },
+    CameraSize {
+        width: u16,
+        height: u16,
+    },
+    BitDepth {
+        bit_depth: u8,
+    },
     NoSubapertures,
-    TooManySubapertures { count: usize, max: usize },
-    EmptyWindow { index: usize },
-    WindowTooLarge { index: usize, width: u16, height: u16 },
-    WindowOutsideCamera { index: usize },
-    PixelCountZero { index: usize },
-    PixelCountListLength { expected: usize, found: usize },
-    MeanCount { count: u16 },
-    LevelFilterGain { gain_shift: u8 },
+    TooManySubapertures {
+        count: usize,
+        max: usize,
+    },
+    EmptyWindow {
+        index: usize,
+    },
+    WindowTooLarge {
+        index: usize,
+        width: u16,
+        height: u16,
+    },
+    WindowOutsideCamera {
+        index: usize,
+    },
+    PixelCountZero {
+        index: usize,
+    },
+    PixelCountListLength {
+        expected: usize,
+        found: usize,
+    },
+    MeanCount {
+        count: u16,
+    },
+    LevelFilterGain {
+        gain_shift: u8,
+    },
     LevelFilterWithoutSubtraction,
-    MapSize { map: MapKind, expected: usize, found: usize },
-    BackgroundOutOfRange { pixel: usize, value: i32 },
-    ThresholdOutOfRange { value: i32 },
-    ReferenceSlopeOutOfRange { index: usize },
+    MapSize {
+        map: MapKind,
+        expected: usize,
+        found: usize,
+    },
+    BackgroundOutOfRange {
+        pixel: usize,
+        value: i32,
+    },
+    ThresholdOutOfRange {
+        value: i32,
+    },
+    ReferenceSlopeOutOfRange {
+        index: usize,
+    },
     NegativeMinFlux,
     /// The engine's static memory cannot hold this many simultaneously open
     /// windows, or their selection state.
-    MemoryBudget { needed: usize, available: usize, what: MemoryKind },
+    MemoryBudget {
+        needed: usize,
+        available: usize,
+        what: MemoryKind,
+    },
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
 pub enum MapKind {
     Background,
     Gain,
     ReferenceSlopes,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
 pub enum MemoryKind {
     Subapertures,
     OpenWindows,
@@ -243,7 +284,10 @@ impl core::fmt::Display for ConfigError {
                 write!(f, "sub-aperture {index} extends outside the camera frame")
             }
             PixelCountZero { index } => {
-                write!(f, "sub-aperture {index}: number of pixels to select (N) is 0")
+                write!(
+                    f,
+                    "sub-aperture {index}: number of pixels to select (N) is 0"
+                )
             }
             PixelCountListLength { expected, found } => write!(
                 f,
@@ -264,10 +308,7 @@ impl core::fmt::Display for ConfigError {
                 map,
                 expected,
                 found,
-            } => write!(
-                f,
-                "{map:?} map has {found} entries, expected {expected}"
-            ),
+            } => write!(f, "{map:?} map has {found} entries, expected {expected}"),
             BackgroundOutOfRange { pixel, value } => write!(
                 f,
                 "background at pixel {pixel} is {value}/16 counts, beyond +-{MAX_BACKGROUND_ABS}/16"
@@ -292,6 +333,8 @@ impl core::fmt::Display for ConfigError {
         }
     }
 }
+
+impl core::error::Error for ConfigError {}
 
 impl Config<'_> {
     /// Checks every bound SPEC.md relies on. Memory limits are checked by the
@@ -379,7 +422,10 @@ impl Config<'_> {
                     found: map.len(),
                 });
             }
-            if let Some(pixel) = map.iter().position(|b| b.unsigned_abs() > MAX_BACKGROUND_ABS as u32) {
+            if let Some(pixel) = map
+                .iter()
+                .position(|b| b.unsigned_abs() > MAX_BACKGROUND_ABS as u32)
+            {
                 return Err(ConfigError::BackgroundOutOfRange {
                     pixel,
                     value: map[pixel],

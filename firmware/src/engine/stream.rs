@@ -16,7 +16,7 @@ use super::select::{
     SubtractNextDistinctRule, SubtractNextRule, ThresholdRule,
 };
 use brightpix_protocol::{
-    Config, ConfigError, MemoryKind, SelectionRule, MAX_WINDOW_SIDE,
+    Config, ConfigError, MemoryKind, SelectionRule, SubapertureWindow, MAX_WINDOW_SIDE,
 };
 
 /// Where results go.
@@ -117,22 +117,19 @@ impl<'c, 'm> Engine<'c, 'm> {
     /// `memory`: for a caller that re-borrows the memory of an engine it
     /// built earlier with the same configuration.
     pub fn resume(config: Config<'c>, memory: EngineMemory<'m>) -> Result<Self, ConfigError> {
-        config.validate()?;
-        let count = config.windows.len();
         let available = memory.capacity();
-        if count > available.subapertures {
-            return Err(ConfigError::MemoryBudget {
-                needed: count,
-                available: available.subapertures,
-                what: MemoryKind::Subapertures,
-            });
-        }
+        let plan = plan(
+            &config,
+            available,
+            memory.order,
+            &mut memory.active[..available.open_windows],
+        )?;
         let mut engine = Engine {
             config,
             calibrator: Calibrator::new(config.calibration),
             centroider: Centroider::new(config.centroid),
             memory,
-            stride: 0,
+            stride: plan.stride,
             max_raw: config.camera.max_raw(),
             row: 0,
             column: 0,
@@ -141,37 +138,24 @@ impl<'c, 'm> Engine<'c, 'm> {
             free_len: 0,
             cursor: 0,
             frames: 0,
-            needed: MemorySize {
-                subapertures: count,
-                open_windows: 0,
-                pool_entries: 0,
-            },
+            needed: plan.needed,
         };
-        let windows = config.windows;
-        let order = &mut engine.memory.order[..count];
-        for (k, o) in order.iter_mut().enumerate() {
-            *o = k as u16;
-        }
-        order.sort_unstable_by_key(|&k| (windows[k as usize].y, windows[k as usize].x));
-        engine.stride = (0..count)
-            .map(|k| {
-                let c = engine.capacity_of(k);
-                c as usize + below_capacity(config.selection.rule, c) as usize
-            })
-            .max()
-            .unwrap_or(0);
-        let open = engine.count_open_windows(available.open_windows)?;
-        engine.needed.open_windows = open;
-        engine.needed.pool_entries = open * engine.stride;
-        if engine.needed.pool_entries > available.pool_entries {
-            return Err(ConfigError::MemoryBudget {
-                needed: engine.needed.pool_entries,
-                available: available.pool_entries,
-                what: MemoryKind::SelectionEntries,
-            });
-        }
         engine.start_frame();
         Ok(engine)
+    }
+
+    /// What [`new`](Self::new) would answer for `config` and memory of
+    /// `capacity`, without touching any engine's memory: `order` and
+    /// `scratch` are scratch space of at least `config.windows.len()`
+    /// entries each. Lets a caller vet a configuration while another engine
+    /// keeps running.
+    pub fn check(
+        config: &Config<'_>,
+        capacity: MemorySize,
+        order: &mut [u16],
+        scratch: &mut [u16],
+    ) -> Result<MemorySize, ConfigError> {
+        plan(config, capacity, order, scratch).map(|plan| plan.needed)
     }
 
     /// The memory this configuration uses (see `memory.rs` for the budget).
@@ -375,7 +359,7 @@ impl<'c, 'm> Engine<'c, 'm> {
                 height: w.height,
                 slot,
                 finished: false,
-                selection: SelectionState::new(self.capacity_of(index)),
+                selection: SelectionState::new(capacity_of(&self.config, index)),
             };
             // Insert into the active list, sorted by first column.
             let active = &mut self.memory.active;
@@ -389,59 +373,120 @@ impl<'c, 'm> Engine<'c, 'm> {
             self.active_len += 1;
         }
     }
+}
 
-    fn capacity_of(&self, index: usize) -> u16 {
-        heap_capacity(
-            self.config.selection.rule,
-            self.config.pixel_count(index),
-            self.config.windows[index].pixel_count(),
-        )
+/// Sizes of an engine for a configuration.
+struct Plan {
+    /// Pool entries per open window.
+    stride: usize,
+    needed: MemorySize,
+}
+
+/// Validates `config`, sorts its windows into `order` (by first row, then
+/// column) and sizes the engine, using `heap` as scratch for counting open
+/// windows; fails if it does not fit `available`.
+fn plan(
+    config: &Config<'_>,
+    available: MemorySize,
+    order: &mut [u16],
+    heap: &mut [u16],
+) -> Result<Plan, ConfigError> {
+    config.validate()?;
+    let windows = config.windows;
+    let count = windows.len();
+    let subapertures = available.subapertures.min(order.len());
+    if count > subapertures {
+        return Err(ConfigError::MemoryBudget {
+            needed: count,
+            available: subapertures,
+            what: MemoryKind::Subapertures,
+        });
     }
-
-    /// The largest number of windows open at once over a frame, using the
-    /// active list as a min-heap of last rows; fails if above `available`.
-    fn count_open_windows(&mut self, available: usize) -> Result<usize, ConfigError> {
-        let windows = self.config.windows;
-        let heap = &mut self.memory.active[..available];
-        let mut len = 0usize;
-        let mut most = 0usize;
-        for &k in self.memory.order[..windows.len()].iter() {
-            let w = windows[k as usize];
-            // Close the windows that ended before this one's first row.
-            while len > 0 && heap[0] < w.y {
-                len -= 1;
-                heap[0] = heap[len];
-                sift_down_rows(&mut heap[..len]);
-            }
-            if len == available {
-                return Err(ConfigError::MemoryBudget {
-                    needed: self.count_open_windows_slowly(),
-                    available,
-                    what: MemoryKind::OpenWindows,
-                });
-            }
-            heap[len] = w.last_row();
-            len += 1;
-            sift_up_rows(&mut heap[..len]);
-            most = most.max(len);
-        }
-        Ok(most)
+    let order = &mut order[..count];
+    for (k, o) in order.iter_mut().enumerate() {
+        *o = k as u16;
     }
-
-    /// Exact count for the error message, without memory: O(windows^2).
-    fn count_open_windows_slowly(&self) -> usize {
-        let windows = self.config.windows;
-        windows
-            .iter()
-            .map(|a| {
-                windows
-                    .iter()
-                    .filter(|b| b.y <= a.y && a.y <= b.last_row())
-                    .count()
+    order.sort_unstable_by_key(|&k| (windows[k as usize].y, windows[k as usize].x));
+    let stride = (0..count)
+        .map(|k| {
+            let c = capacity_of(config, k);
+            c as usize + below_capacity(config.selection.rule, c) as usize
+        })
+        .max()
+        .unwrap_or(0);
+    let open = match count_open_windows(windows, order, heap) {
+        Some(open) if open <= available.open_windows => open,
+        found => {
+            return Err(ConfigError::MemoryBudget {
+                needed: found.unwrap_or_else(|| count_open_windows_slowly(windows)),
+                available: available.open_windows,
+                what: MemoryKind::OpenWindows,
             })
-            .max()
-            .unwrap_or(0)
+        }
+    };
+    let needed = MemorySize {
+        subapertures: count,
+        open_windows: open,
+        pool_entries: open * stride,
+    };
+    if needed.pool_entries > available.pool_entries {
+        return Err(ConfigError::MemoryBudget {
+            needed: needed.pool_entries,
+            available: available.pool_entries,
+            what: MemoryKind::SelectionEntries,
+        });
     }
+    Ok(Plan { stride, needed })
+}
+
+fn capacity_of(config: &Config<'_>, index: usize) -> u16 {
+    heap_capacity(
+        config.selection.rule,
+        config.pixel_count(index),
+        config.windows[index].pixel_count(),
+    )
+}
+
+/// The largest number of windows open at once over a frame, using `heap`
+/// as a min-heap of last rows; `None` if more than `heap.len()`.
+fn count_open_windows(
+    windows: &[SubapertureWindow],
+    order: &[u16],
+    heap: &mut [u16],
+) -> Option<usize> {
+    let mut len = 0usize;
+    let mut most = 0usize;
+    for &k in order {
+        let w = windows[k as usize];
+        // Close the windows that ended before this one's first row.
+        while len > 0 && heap[0] < w.y {
+            len -= 1;
+            heap[0] = heap[len];
+            sift_down_rows(&mut heap[..len]);
+        }
+        if len == heap.len() {
+            return None;
+        }
+        heap[len] = w.last_row();
+        len += 1;
+        sift_up_rows(&mut heap[..len]);
+        most = most.max(len);
+    }
+    Some(most)
+}
+
+/// Exact count for the error message, without memory: O(windows^2).
+fn count_open_windows_slowly(windows: &[SubapertureWindow]) -> usize {
+    windows
+        .iter()
+        .map(|a| {
+            windows
+                .iter()
+                .filter(|b| b.y <= a.y && a.y <= b.last_row())
+                .count()
+        })
+        .max()
+        .unwrap_or(0)
 }
 
 /// The pool slot at `base`: a heap of `capacity` entries, then `below`

@@ -1,0 +1,1020 @@
+//! The device loop, independent of the board: it speaks the wire protocol
+//! (`shared/PROTOCOL.md`) over a byte transport, keeps an active and a
+//! staging configuration, runs the streaming [`Engine`] on the pixels that
+//! arrive (in `PixelRows` messages or from a [`PixelSource`]) and streams
+//! the slopes back.
+//!
+//! A board provides:
+//! - the link: one value implementing `embedded_io_async::{Read, Write}`
+//!   (a UART, a USB CDC-ACM class, ...). Its `read` must be cancel-safe if
+//!   the board also has a pixel source (the two are raced);
+//! - a [`PixelSource`] ([`LinkOnly`] when the host emulates the camera);
+//! - storage: a [`DeviceStorage`] in a `static` (or [`DeviceBuffers`]
+//!   assembled from buffers in different memories);
+//!
+//! and runs it:
+//!
+//! ```ignore
+//! type Storage = DeviceStorage<256, { 128 * 128 }, 16, 16 * 21, 64>;
+//! static STORAGE: ConstStaticCell<Storage> = ConstStaticCell::new(Storage::new());
+//!
+//! let mut device = Device::new(uart, LinkOnly, STORAGE.take().borrow(), "qemu-mps2-an386");
+//! loop {
+//!     let Err(e) = device.run().await;
+//!     // the link failed or closed: configuration and counters are kept
+//! }
+//! ```
+//!
+//! Every input is checked before it changes anything: a garbled frame, a
+//! bad upload or a bad pixel leaves the device as it was (and is counted
+//! and answered with an `Error`). A configuration is uploaded into the
+//! staging slot, vetted completely there (validation, engine memory, result
+//! queue) while the active configuration keeps running, and only then
+//! swapped in.
+//!
+//! The engine borrows its configuration and memory, so the device does not
+//! store it: [`Device::run`] builds it from the active slot (with
+//! `Engine::resume`, which keeps the level filters; `Engine::new` after a
+//! new configuration) and rebuilds it after a swap.
+
+mod fmt;
+pub mod source;
+pub mod storage;
+
+use core::convert::Infallible;
+
+use brightpix_protocol::wire::{
+    decode_body, encode, hello_in_body, unstuff, Ack, Capabilities, ConfigHeader, Crc32Digest,
+    DeviceError, DeviceMessage, FrameFault, FrameReader, Hello, HelloReply, HostMessage,
+    MessageKind, PixelSourceKind, Received, SlopeEntry, SlopeList, Status, Table, TablePosition,
+    WireError, CRC32, MAX_BOARD_NAME_LEN, MAX_CHUNK_BYTES, MAX_FRAME_LEN, SLOPES_PER_MESSAGE,
+};
+use brightpix_protocol::wire::{tables, CapacityKind};
+use brightpix_protocol::SubapertureWindow;
+use embassy_futures::select::{select, Either};
+use embedded_io_async::{Read, Write};
+
+use crate::engine::{Engine, EngineMemory, FrameError, MemorySize, OutputSink, SubapertureResult};
+use fmt::{log_debug, log_info, log_warn};
+
+pub use embedded_io_async;
+pub use source::{CameraRefused, LinkOnly, PixelRowsStream, PixelRun, PixelSource};
+pub use storage::{ConfigSlot, DeviceBuffers, DeviceStorage, SlotStorage};
+
+/// Why [`Device::run`] returned. The device keeps its configuration and
+/// counters; call `run` again when the link is back.
+#[derive(Debug, PartialEq, Eq)]
+pub enum LinkError<E> {
+    /// The transport failed.
+    Io(E),
+    /// The transport reached its end (a read returned 0 bytes).
+    Closed,
+}
+
+/// The device: link, pixel source, configurations, engine memory, counters.
+pub struct Device<'d, T, C> {
+    rx: FrameReader<&'d mut [u8]>,
+    source: C,
+    slots: [ConfigSlot<'d>; 2],
+    memory: EngineMemory<'d>,
+    core: Core<'d, T>,
+}
+
+/// Everything but the receive buffer, the pixel source, the slots and the
+/// engine memory (which the loop borrows separately).
+struct Core<'d, T> {
+    link: T,
+    tx: &'d mut [u8],
+    pixels: &'d mut [u16],
+    order: &'d mut [u16],
+    scratch: &'d mut [u16],
+    results: &'d mut [SubapertureResult],
+    /// Results waiting in `results`.
+    queued: usize,
+    capabilities: Capabilities<'static>,
+    engine_capacity: MemorySize,
+    /// Index of the active slot.
+    active: usize,
+    /// A swap is pending: build the engine afresh and acknowledge.
+    applying: Option<Applying>,
+    /// The staging slot's header must be cleared (a swap failed).
+    discard_staging: bool,
+    /// A matching Hello was received.
+    session: bool,
+    upload: Option<Upload>,
+    /// The frame the engine is in the middle of.
+    frame: Option<FrameProgress>,
+    /// A frame whose remaining pixels are ignored after a fault.
+    skipping: Option<u32>,
+    capture: Option<Capture>,
+    capture_finished: bool,
+    counters: Status,
+}
+
+struct Applying {
+    config_id: u32,
+}
+
+struct Upload {
+    id: u32,
+    header: ConfigHeader,
+    /// Where the next chunk must start; `None` when all tables are complete.
+    next: Option<TablePosition>,
+    digest: Crc32Digest,
+}
+
+#[derive(Clone, Copy)]
+struct FrameProgress {
+    frame: u32,
+    /// Next pixel expected.
+    next: u32,
+    /// Results sent so far.
+    sent: u32,
+}
+
+#[derive(Clone, Copy)]
+struct Capture {
+    frames: u32,
+    done: u32,
+}
+
+#[derive(PartialEq, Eq)]
+enum Next {
+    Continue,
+    /// The active configuration changed: rebuild the engine.
+    Rebuild,
+}
+
+type LinkResult<T, E> = Result<T, LinkError<E>>;
+
+impl<'d, T: Read + Write, C: PixelSource> Device<'d, T, C> {
+    /// A device with no configuration. `board` (at most
+    /// [`MAX_BOARD_NAME_LEN`] bytes; longer is cut) is reported in
+    /// `HelloReply`.
+    pub fn new(link: T, source: C, buffers: DeviceBuffers<'d>, board: &'static str) -> Self {
+        let DeviceBuffers {
+            slots,
+            engine,
+            order,
+            scratch,
+            results,
+            rx,
+            tx,
+            pixels,
+        } = buffers;
+        let engine_capacity = engine.capacity();
+        let max_subapertures = slots
+            .iter()
+            .map(|s| s.subaperture_capacity())
+            .chain([engine_capacity.subapertures, order.len(), scratch.len()])
+            .min()
+            .unwrap_or(0);
+        let max_camera_pixels = slots.iter().map(|s| s.pixel_capacity()).min().unwrap_or(0);
+        let capabilities = Capabilities {
+            max_subapertures: saturate(max_subapertures),
+            max_camera_pixels: saturate(max_camera_pixels),
+            max_open_windows: saturate(engine_capacity.open_windows),
+            pool_entries: saturate(engine_capacity.pool_entries),
+            max_results_per_row: saturate(results.len()),
+            max_frame_bytes: saturate((rx.len() + 1).min(MAX_FRAME_LEN)),
+            pixel_source: source.kind(),
+            board: truncate(board, MAX_BOARD_NAME_LEN),
+        };
+        Device {
+            rx: FrameReader::new(rx),
+            source,
+            slots,
+            memory: engine,
+            core: Core {
+                link,
+                tx,
+                pixels,
+                order,
+                scratch,
+                results,
+                queued: 0,
+                capabilities,
+                engine_capacity,
+                active: 0,
+                applying: None,
+                discard_staging: false,
+                session: false,
+                upload: None,
+                frame: None,
+                skipping: None,
+                capture: None,
+                capture_finished: false,
+                counters: Status::default(),
+            },
+        }
+    }
+
+    /// What the device reports in `HelloReply`.
+    pub fn capabilities(&self) -> &Capabilities<'static> {
+        &self.core.capabilities
+    }
+
+    /// What the device reports in `Status`.
+    pub fn status(&self) -> Status {
+        self.core.status()
+    }
+
+    /// The transport.
+    pub fn link(&mut self) -> &mut T {
+        &mut self.core.link
+    }
+
+    /// The pixel source.
+    pub fn source(&mut self) -> &mut C {
+        &mut self.source
+    }
+
+    /// Serves the host until the link fails or closes.
+    pub async fn run(&mut self) -> Result<Infallible, LinkError<T::Error>> {
+        let Device {
+            rx,
+            source,
+            slots,
+            memory,
+            core,
+        } = self;
+        if let Some(progress) = core.frame.take() {
+            // The engine of the previous run held this frame's state.
+            core.counters.frames_dropped += 1;
+            core.skipping = Some(progress.frame);
+            core.queued = 0;
+        }
+        loop {
+            let [a, b] = &mut *slots;
+            let (active, staging) = if core.active == 0 { (a, b) } else { (b, a) };
+            if core.discard_staging {
+                core.discard_staging = false;
+                staging.header = None;
+            }
+            let mut engine = None;
+            if let Some(config) = active.config() {
+                let memory = reborrow(memory);
+                let built = match core.applying {
+                    Some(_) => Engine::new(config, memory),
+                    None => Engine::resume(config, memory),
+                };
+                match built {
+                    Ok(e) => engine = Some(e),
+                    Err(e) => {
+                        // Cannot happen: the configuration was vetted with the
+                        // same plan. Go back to the previous one, if any.
+                        log_warn!("device: engine refused a vetted configuration");
+                        if core.applying.take().is_some() {
+                            core.active ^= 1;
+                            core.discard_staging = true;
+                            core.send(&DeviceMessage::Error(DeviceError::Config(e.into())))
+                                .await?;
+                            continue;
+                        }
+                        active.header = None;
+                        core.counters.config_id = None;
+                        continue;
+                    }
+                }
+            }
+            if let (Some(applying), Some(engine)) = (core.applying.take(), &engine) {
+                let needed = engine.memory_needed();
+                core.counters.config_id = Some(applying.config_id);
+                log_info!(
+                    "device: configuration {=u32} applied ({=usize} sub-apertures)",
+                    applying.config_id,
+                    needed.subapertures
+                );
+                core.send(&DeviceMessage::Ack(Ack::ConfigApplied {
+                    config_id: applying.config_id,
+                    open_windows: saturate(needed.open_windows),
+                    pool_entries: saturate(needed.pool_entries),
+                }))
+                .await?;
+            }
+            core.serve(rx, source, &mut engine, staging).await?;
+        }
+    }
+}
+
+impl<T: Read + Write> Core<'_, T> {
+    fn status(&self) -> Status {
+        Status {
+            upload_id: self.upload.as_ref().map(|u| u.id),
+            capturing: self.capture.is_some(),
+            ..self.counters
+        }
+    }
+
+    /// Handles frames and pixels until the active configuration changes.
+    async fn serve<C: PixelSource>(
+        &mut self,
+        rx: &mut FrameReader<&mut [u8]>,
+        source: &mut C,
+        engine: &mut Option<Engine<'_, '_>>,
+        staging: &mut ConfigSlot<'_>,
+    ) -> LinkResult<(), T::Error> {
+        loop {
+            while let Some(received) = rx.next_frame() {
+                let message = match received {
+                    Received::TooLong => {
+                        bump(&mut self.counters.decode_errors, 1);
+                        log_debug!("device: frame too long, dropped");
+                        self.send_error(DeviceError::FrameTooLong).await?;
+                        continue;
+                    }
+                    Received::Frame(bytes) => match unstuff(bytes) {
+                        Err(WireError::Crc { .. }) => {
+                            bump(&mut self.counters.crc_errors, 1);
+                            log_debug!("device: frame with a bad CRC, dropped");
+                            self.send_error(DeviceError::Crc).await?;
+                            continue;
+                        }
+                        Err(_) => None,
+                        Ok(body) => match decode_body::<HostMessage>(body) {
+                            Ok(message) => Some(message),
+                            // A host of another protocol version: its Hello
+                            // keeps the frozen prefix; answer it as a Hello.
+                            Err(_) => hello_in_body(body).map(HostMessage::Hello),
+                        },
+                    },
+                };
+                let Some(message) = message else {
+                    bump(&mut self.counters.decode_errors, 1);
+                    log_debug!("device: frame that does not decode, dropped");
+                    self.send_error(DeviceError::Decode).await?;
+                    continue;
+                };
+                if self.handle(message, source, engine, staging).await? == Next::Rebuild {
+                    return Ok(());
+                }
+            }
+            self.link.flush().await.map_err(LinkError::Io)?;
+            match select(self.link.read(rx.space()), source.next()).await {
+                Either::First(Ok(0)) => return Err(LinkError::Closed),
+                Either::First(Ok(n)) => rx.advance(n),
+                Either::First(Err(e)) => return Err(LinkError::Io(e)),
+                Either::Second(run) => {
+                    if let Some(engine) = engine {
+                        self.feed(engine, run.frame, run.first_pixel, run.pixels)
+                            .await?;
+                    }
+                }
+            }
+            if core::mem::take(&mut self.capture_finished) {
+                source.stop();
+                let frames = self.capture.take().map_or(0, |c| c.done);
+                log_info!("device: capture of {=u32} frames done", frames);
+                self.send(&DeviceMessage::Ack(Ack::CaptureStopped { frames }))
+                    .await?;
+            }
+        }
+    }
+
+    async fn handle<C: PixelSource>(
+        &mut self,
+        message: HostMessage<'_>,
+        source: &mut C,
+        engine: &mut Option<Engine<'_, '_>>,
+        staging: &mut ConfigSlot<'_>,
+    ) -> LinkResult<Next, T::Error> {
+        if let HostMessage::Hello(hello) = message {
+            self.session = hello.matches_current();
+            if self.session {
+                log_info!("device: session started");
+            } else {
+                log_warn!(
+                    "device: host speaks protocol {=u16} schema {=u64:#x}, device {=u16} {=u64:#x}: refused",
+                    hello.version,
+                    hello.schema,
+                    Hello::CURRENT.version,
+                    Hello::CURRENT.schema
+                );
+            }
+            let reply = DeviceMessage::HelloReply(HelloReply {
+                version: Hello::CURRENT.version,
+                schema: Hello::CURRENT.schema,
+                capabilities: self.capabilities.clone(),
+            });
+            self.send(&reply).await?;
+            return Ok(Next::Continue);
+        }
+        if !self.session {
+            self.send_error(DeviceError::HelloRequired).await?;
+            return Ok(Next::Continue);
+        }
+        let reply = match message {
+            HostMessage::Hello(_) => unreachable_hello(),
+            HostMessage::ConfigBegin { upload_id, header } => self
+                .begin(upload_id, header, staging)
+                .map(|upload_id| Ack::UploadStarted { upload_id }),
+            HostMessage::ConfigChunk {
+                upload_id,
+                table,
+                offset,
+                bytes,
+            } => self.chunk(upload_id, table, offset, bytes, staging),
+            HostMessage::ConfigCommit { upload_id, crc32 } => {
+                match self.commit(upload_id, crc32, staging) {
+                    Ok(()) => {
+                        if let Some(capture) = self.capture.take() {
+                            source.stop();
+                            self.send(&DeviceMessage::Ack(Ack::CaptureStopped {
+                                frames: capture.done,
+                            }))
+                            .await?;
+                        }
+                        if let Some(engine) = engine {
+                            self.drop_frame(engine, FrameFault::Reconfigured).await?;
+                        }
+                        self.active ^= 1;
+                        self.applying = Some(Applying {
+                            config_id: upload_id,
+                        });
+                        return Ok(Next::Rebuild);
+                    }
+                    Err(e) => Err(e),
+                }
+            }
+            HostMessage::ConfigAbort => {
+                let upload_id = self.upload.take().map(|u| u.id);
+                Ok(Ack::UploadAborted { upload_id })
+            }
+            HostMessage::StatusRequest => {
+                let status = self.status();
+                self.send(&DeviceMessage::Status(status)).await?;
+                return Ok(Next::Continue);
+            }
+            HostMessage::ResetLevelFilters => match engine {
+                Some(engine) => {
+                    engine.reset_level_filters();
+                    Ok(Ack::LevelFiltersReset)
+                }
+                None => Err(DeviceError::NotConfigured),
+            },
+            HostMessage::PixelRows {
+                frame,
+                first_pixel,
+                pixels,
+            } => {
+                let result = match (engine, self.capture.is_some()) {
+                    (_, true) => Err(DeviceError::Unexpected {
+                        message: MessageKind::PixelRows,
+                    }),
+                    (None, _) => Err(DeviceError::NotConfigured),
+                    (Some(_), _) if pixels.len() % 2 != 0 => Err(DeviceError::Frame {
+                        frame,
+                        fault: FrameFault::OddLength,
+                    }),
+                    (Some(engine), _) => {
+                        self.feed_le(engine, frame, first_pixel, pixels).await?;
+                        Ok(())
+                    }
+                };
+                if let Err(e) = result {
+                    self.send_error(e).await?;
+                }
+                return Ok(Next::Continue);
+            }
+            HostMessage::Capture { frames } => {
+                if source.kind() != PixelSourceKind::Camera {
+                    Err(DeviceError::NoCamera)
+                } else if self.capture.is_some() {
+                    Err(DeviceError::Unexpected {
+                        message: MessageKind::Capture,
+                    })
+                } else {
+                    match engine {
+                        None => Err(DeviceError::NotConfigured),
+                        Some(engine) => match source.start(engine.config().camera) {
+                            Ok(()) => {
+                                self.capture = Some(Capture { frames, done: 0 });
+                                log_info!("device: capture of {=u32} frames started", frames);
+                                Ok(Ack::CaptureStarted { frames })
+                            }
+                            Err(CameraRefused) => Err(DeviceError::NoCamera),
+                        },
+                    }
+                }
+            }
+            HostMessage::StopCapture => {
+                let frames = match self.capture.take() {
+                    Some(capture) => {
+                        source.stop();
+                        if let Some(engine) = engine {
+                            self.drop_frame(engine, FrameFault::Stopped).await?;
+                        }
+                        capture.done
+                    }
+                    None => 0,
+                };
+                Ok(Ack::CaptureStopped { frames })
+            }
+        };
+        match reply {
+            Ok(ack) => self.send(&DeviceMessage::Ack(ack)).await?,
+            Err(e) => self.send_error(e).await?,
+        }
+        Ok(Next::Continue)
+    }
+
+    // --- upload -------------------------------------------------------------
+
+    fn begin(
+        &mut self,
+        upload_id: u32,
+        header: ConfigHeader,
+        staging: &mut ConfigSlot<'_>,
+    ) -> Result<u32, DeviceError> {
+        // A new upload always discards the one in progress, even if refused.
+        self.upload = None;
+        staging.header = None;
+        let capacity = self.capabilities.max_subapertures;
+        if header.windows > capacity {
+            return Err(DeviceError::Capacity {
+                what: CapacityKind::Subapertures,
+                needed: header.windows,
+                available: capacity,
+            });
+        }
+        let pixels = header.camera.pixel_count();
+        let available = self.capabilities.max_camera_pixels;
+        if (header.background || header.gain) && pixels > available as usize {
+            return Err(DeviceError::Capacity {
+                what: CapacityKind::CameraPixels,
+                needed: saturate(pixels),
+                available,
+            });
+        }
+        self.upload = Some(Upload {
+            id: upload_id,
+            header,
+            next: header
+                .next_table(0)
+                .map(|table| TablePosition { table, offset: 0 }),
+            digest: CRC32.digest(),
+        });
+        log_debug!("device: upload {=u32} started", upload_id);
+        Ok(upload_id)
+    }
+
+    /// The upload in progress, if `upload_id` is its id.
+    fn upload_for(&mut self, upload_id: u32) -> Result<&mut Upload, DeviceError> {
+        match &mut self.upload {
+            None => Err(DeviceError::NoUpload),
+            Some(u) if u.id != upload_id => Err(DeviceError::UploadMismatch {
+                expected: u.id,
+                found: upload_id,
+            }),
+            Some(u) => Ok(u),
+        }
+    }
+
+    fn chunk(
+        &mut self,
+        upload_id: u32,
+        table: Table,
+        offset: u32,
+        bytes: &[u8],
+        staging: &mut ConfigSlot<'_>,
+    ) -> Result<Ack, DeviceError> {
+        let upload = self.upload_for(upload_id)?;
+        let result = store_chunk(upload, table, offset, bytes, staging);
+        if result.is_err() {
+            // A chunk out of place means lost data: start again.
+            self.upload = None;
+        }
+        result
+    }
+
+    fn commit(
+        &mut self,
+        upload_id: u32,
+        claimed: u32,
+        staging: &mut ConfigSlot<'_>,
+    ) -> Result<(), DeviceError> {
+        self.upload_for(upload_id)?;
+        let Some(upload) = self.upload.take() else {
+            return Err(DeviceError::NoUpload);
+        };
+        let header = upload.header;
+        if let Some(position) = upload.next {
+            return Err(DeviceError::UploadIncomplete {
+                table: position.table,
+                received: position.offset,
+                expected: header.table_len(position.table).map_or(0, saturate),
+            });
+        }
+        let computed = upload.digest.finalize();
+        if computed != claimed {
+            return Err(DeviceError::UploadCrc { computed, claimed });
+        }
+        let config = staging.config_with(&header).ok_or(DeviceError::Capacity {
+            what: CapacityKind::Subapertures,
+            needed: header.windows,
+            available: self.capabilities.max_subapertures,
+        })?;
+        Engine::check(&config, self.engine_capacity, self.order, self.scratch)
+            .map_err(|e| DeviceError::Config(e.into()))?;
+        let per_row = results_per_row(config.windows, self.scratch);
+        if per_row > self.results.len() {
+            return Err(DeviceError::Capacity {
+                what: CapacityKind::ResultsPerRow,
+                needed: saturate(per_row),
+                available: saturate(self.results.len()),
+            });
+        }
+        staging.header = Some(header);
+        Ok(())
+    }
+
+    // --- pixels ---------------------------------------------------------------
+
+    /// Pixels as u16 LE bytes (even length), converted a batch at a time.
+    async fn feed_le(
+        &mut self,
+        engine: &mut Engine<'_, '_>,
+        frame: u32,
+        first_pixel: u32,
+        bytes: &[u8],
+    ) -> LinkResult<(), T::Error> {
+        let buffer = core::mem::take(&mut self.pixels);
+        let batch = buffer.len().max(1) * 2;
+        let mut first = first_pixel;
+        let mut result = Ok(());
+        for part in bytes.chunks(batch) {
+            let n = tables::pixels_from_le(part, buffer);
+            result = self.feed(engine, frame, first, &buffer[..n]).await;
+            if result.is_err() || n == 0 {
+                break;
+            }
+            first = first.wrapping_add(n as u32);
+        }
+        self.pixels = buffer;
+        result
+    }
+
+    /// Pixels `first_pixel ..` of frame `frame`.
+    async fn feed(
+        &mut self,
+        engine: &mut Engine<'_, '_>,
+        frame: u32,
+        first_pixel: u32,
+        pixels: &[u16],
+    ) -> LinkResult<(), T::Error> {
+        if pixels.is_empty() {
+            return Ok(());
+        }
+        let camera = engine.config().camera;
+        match self.frame {
+            Some(p) if p.frame == frame && p.next == first_pixel => {}
+            _ if first_pixel == 0 => {
+                if let Some(p) = self.frame {
+                    let received = p.next;
+                    self.drop_frame(engine, FrameFault::Incomplete { received })
+                        .await?;
+                }
+                self.skipping = None;
+                self.frame = Some(FrameProgress {
+                    frame,
+                    next: 0,
+                    sent: 0,
+                });
+            }
+            _ => {
+                if self.skipping == Some(frame) {
+                    return Ok(());
+                }
+                bump(&mut self.counters.overruns, 1);
+                let mut expected = 0;
+                if let Some(p) = self.frame {
+                    if p.frame == frame {
+                        expected = p.next;
+                        self.abandon(engine).await?;
+                    } else {
+                        let received = p.next;
+                        self.drop_frame(engine, FrameFault::Incomplete { received })
+                            .await?;
+                    }
+                }
+                self.skipping = Some(frame);
+                log_debug!("device: frame {=u32}: gap", frame);
+                return self
+                    .send_error(DeviceError::Frame {
+                        frame,
+                        fault: FrameFault::Gap {
+                            expected,
+                            found: first_pixel,
+                        },
+                    })
+                    .await;
+            }
+        }
+        let total = camera.pixel_count() as u64;
+        if first_pixel as u64 + pixels.len() as u64 > total {
+            self.abandon(engine).await?;
+            self.skipping = Some(frame);
+            return self
+                .send_error(DeviceError::Frame {
+                    frame,
+                    fault: FrameFault::PastEnd {
+                        first_pixel,
+                        count: saturate(pixels.len()),
+                    },
+                })
+                .await;
+        }
+        let width = camera.width as usize;
+        let mut rest = pixels;
+        while !rest.is_empty() {
+            let (_, column) = engine.position();
+            let take = rest.len().min(width - column as usize);
+            let mut sink = QueueSink {
+                results: self.results,
+                queued: &mut self.queued,
+                lost: 0,
+                done: false,
+            };
+            let pushed = engine.push(&rest[..take], &mut sink);
+            let (lost, done) = (sink.lost, sink.done);
+            bump(&mut self.counters.overruns, lost);
+            if let Err(FrameError::PixelOutOfRange { row, column, value }) = pushed {
+                // The engine has abandoned the frame (SPEC.md §8); results
+                // already finished stand.
+                self.flush(frame, true).await?;
+                self.frame = None;
+                self.skipping = Some(frame);
+                bump(&mut self.counters.pixel_errors, 1);
+                self.counters.frames_dropped += 1;
+                return self
+                    .send_error(DeviceError::Frame {
+                        frame,
+                        fault: FrameFault::PixelOutOfRange { row, column, value },
+                    })
+                    .await;
+            }
+            if let Some(p) = &mut self.frame {
+                p.next += take as u32;
+            }
+            rest = &rest[take..];
+            let row_done = column as usize + take == width;
+            self.flush(frame, row_done).await?;
+            if done {
+                let sent = self.frame.take().map_or(0, |p| p.sent);
+                self.counters.frames_processed += 1;
+                self.send(&DeviceMessage::FrameDone { frame, count: sent })
+                    .await?;
+                if let Some(capture) = &mut self.capture {
+                    capture.done += 1;
+                    if capture.frames != 0 && capture.done >= capture.frames {
+                        self.capture_finished = true;
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Sends the queued results of `frame`: whole messages, or all if `all`.
+    async fn flush(&mut self, frame: u32, all: bool) -> LinkResult<(), T::Error> {
+        let mut start = 0;
+        while self.queued - start >= SLOPES_PER_MESSAGE || (all && self.queued > start) {
+            let n = (self.queued - start).min(SLOPES_PER_MESSAGE);
+            let mut results = SlopeList::new();
+            for r in &self.results[start..start + n] {
+                let _ = results.push(SlopeEntry {
+                    index: r.index,
+                    slope_x: r.slope_x,
+                    slope_y: r.slope_y,
+                    flux: r.flux,
+                    valid: r.valid,
+                });
+            }
+            start += n;
+            if let Some(p) = &mut self.frame {
+                p.sent += n as u32;
+            }
+            self.send(&DeviceMessage::Slopes { frame, results }).await?;
+        }
+        self.results.copy_within(start..self.queued, 0);
+        self.queued -= start;
+        Ok(())
+    }
+
+    /// Abandons the frame in progress, if any, without reporting it; its
+    /// remaining pixels will be ignored.
+    async fn abandon(&mut self, engine: &mut Engine<'_, '_>) -> LinkResult<(), T::Error> {
+        if let Some(p) = self.frame.take() {
+            self.flush(p.frame, true).await?;
+            engine.abort_frame();
+            self.counters.frames_dropped += 1;
+            self.skipping = Some(p.frame);
+        }
+        Ok(())
+    }
+
+    /// Abandons the frame in progress, if any, and reports why.
+    async fn drop_frame(
+        &mut self,
+        engine: &mut Engine<'_, '_>,
+        fault: FrameFault,
+    ) -> LinkResult<(), T::Error> {
+        if let Some(p) = self.frame {
+            self.abandon(engine).await?;
+            log_debug!("device: frame {=u32} dropped", p.frame);
+            self.send_error(DeviceError::Frame {
+                frame: p.frame,
+                fault,
+            })
+            .await?;
+        }
+        Ok(())
+    }
+
+    // --- output ---------------------------------------------------------------
+
+    async fn send_error(&mut self, error: DeviceError) -> LinkResult<(), T::Error> {
+        self.send(&DeviceMessage::Error(error)).await
+    }
+
+    async fn send(&mut self, message: &DeviceMessage<'_>) -> LinkResult<(), T::Error> {
+        match encode(message, self.tx) {
+            Ok(frame) => self.link.write_all(frame).await.map_err(LinkError::Io),
+            Err(_) => {
+                // Only with a transmit buffer below MAX_FRAME_LEN.
+                log_warn!("device: a reply did not fit the transmit buffer");
+                Ok(())
+            }
+        }
+    }
+}
+
+fn unreachable_hello() -> Result<Ack, DeviceError> {
+    Err(DeviceError::Unexpected {
+        message: MessageKind::Hello,
+    })
+}
+
+/// Checks a chunk against the upload's position and stores its elements.
+fn store_chunk(
+    upload: &mut Upload,
+    table: Table,
+    offset: u32,
+    bytes: &[u8],
+    staging: &mut ConfigSlot<'_>,
+) -> Result<Ack, DeviceError> {
+    let found = TablePosition { table, offset };
+    if upload.next != Some(found) {
+        return Err(DeviceError::ChunkOutOfOrder {
+            expected: upload.next,
+            found,
+        });
+    }
+    let size = table.element_size();
+    let len = bytes.len();
+    if len == 0 || len / size * size != len || len > MAX_CHUNK_BYTES {
+        return Err(DeviceError::ChunkLength {
+            table,
+            len: saturate(len),
+        });
+    }
+    let table_len = upload.header.table_len(table).unwrap_or(0);
+    let end = offset as usize + len;
+    if end > table_len {
+        return Err(DeviceError::ChunkPastEnd {
+            table,
+            end: saturate(end),
+            len: saturate(table_len),
+        });
+    }
+    let first = offset as usize / size;
+    let range = first..first + len / size;
+    let stored = match table {
+        Table::Windows => fill(staging.windows.get_mut(range), bytes, tables::read_window),
+        Table::PixelCounts => fill(staging.pixel_counts.get_mut(range), bytes, |b| {
+            u16::from_le_bytes([b[0], b[1]])
+        }),
+        Table::Background => fill(staging.background.get_mut(range), bytes, |b| {
+            i32::from_le_bytes([b[0], b[1], b[2], b[3]])
+        }),
+        Table::Gain => fill(staging.gain.get_mut(range), bytes, |b| {
+            u16::from_le_bytes([b[0], b[1]])
+        }),
+        Table::ReferenceSlopes => fill(
+            staging.reference_slopes.get_mut(range),
+            bytes,
+            tables::read_reference_slope,
+        ),
+    };
+    if !stored {
+        // Capacity was checked at ConfigBegin; never here.
+        return Err(DeviceError::ChunkPastEnd {
+            table,
+            end: saturate(end),
+            len: saturate(table_len),
+        });
+    }
+    upload.digest.update(bytes);
+    upload.next = if end == table_len {
+        upload
+            .header
+            .next_table(table.position() + 1)
+            .map(|table| TablePosition { table, offset: 0 })
+    } else {
+        Some(TablePosition {
+            table,
+            offset: end as u32,
+        })
+    };
+    Ok(Ack::ChunkStored {
+        upload_id: upload.id,
+        table,
+        end: end as u32,
+    })
+}
+
+fn fill<E>(target: Option<&mut [E]>, bytes: &[u8], read: impl Fn(&[u8]) -> E) -> bool {
+    let Some(target) = target else {
+        return false;
+    };
+    let size = bytes.len() / target.len().max(1);
+    for (t, b) in target.iter_mut().zip(bytes.chunks_exact(size.max(1))) {
+        *t = read(b);
+    }
+    true
+}
+
+/// The most windows that end in one camera row (`windows` valid).
+fn results_per_row(windows: &[SubapertureWindow], scratch: &mut [u16]) -> usize {
+    let n = windows.len().min(scratch.len());
+    let rows = &mut scratch[..n];
+    for (r, w) in rows.iter_mut().zip(windows) {
+        *r = w.last_row();
+    }
+    rows.sort_unstable();
+    let mut most = 0;
+    let mut run = 0;
+    for k in 0..n {
+        run = if k > 0 && rows[k] == rows[k - 1] {
+            run + 1
+        } else {
+            1
+        };
+        most = most.max(run);
+    }
+    most
+}
+
+/// Collects the engine's results into the queue.
+struct QueueSink<'a> {
+    results: &'a mut [SubapertureResult],
+    queued: &'a mut usize,
+    lost: u32,
+    done: bool,
+}
+
+impl OutputSink for QueueSink<'_> {
+    fn subaperture(&mut self, result: SubapertureResult) {
+        match self.results.get_mut(*self.queued) {
+            Some(slot) => {
+                *slot = result;
+                *self.queued += 1;
+            }
+            // Only if a row finishes more windows than vetted; never.
+            None => self.lost += 1,
+        }
+    }
+
+    fn frame_complete(&mut self, _frame: u32) {
+        self.done = true;
+    }
+}
+
+fn reborrow<'a>(memory: &'a mut EngineMemory<'_>) -> EngineMemory<'a> {
+    EngineMemory {
+        order: memory.order,
+        level_filters: memory.level_filters,
+        open: memory.open,
+        active: memory.active,
+        free: memory.free,
+        values: memory.values,
+        positions: memory.positions,
+    }
+}
+
+/// Counters stop at their maximum instead of wrapping (or panicking).
+fn bump(counter: &mut u32, by: u32) {
+    *counter = counter.saturating_add(by);
+}
+
+fn saturate(v: usize) -> u32 {
+    u32::try_from(v).unwrap_or(u32::MAX)
+}
+
+fn truncate(s: &str, max: usize) -> &str {
+    let mut end = s.len().min(max);
+    while !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    &s[..end]
+}

@@ -1,0 +1,138 @@
+//! Where pixels come from besides `PixelRows` messages on the link.
+
+use brightpix_protocol::wire::tables::pixels_from_le;
+use brightpix_protocol::wire::{decode, FrameReader, HostMessage, PixelSourceKind, Received};
+use brightpix_protocol::Camera;
+use embedded_io_async::Read;
+
+/// A run of raw pixels of one frame, in raster order: pixels
+/// `first_pixel .. first_pixel + pixels.len()` of frame `frame`.
+///
+/// A source that lost data (e.g. a DMA overrun) says so by where the next
+/// run starts: the device drops the frame and counts an overrun.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PixelRun<'a> {
+    pub frame: u32,
+    pub first_pixel: u32,
+    pub pixels: &'a [u16],
+}
+
+/// A pixel source cannot capture (none, or not this geometry); the host
+/// gets `Error(NoCamera)`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CameraRefused;
+
+/// A source of camera pixels: a camera interface, or a stream the host
+/// writes outside the link (e.g. a semihosting file on QEMU).
+#[allow(async_fn_in_trait)]
+pub trait PixelSource {
+    /// Reported to the host in `HelloReply`.
+    fn kind(&self) -> PixelSourceKind;
+
+    /// Starts capturing frames of `camera`'s geometry (`Capture`). Only a
+    /// [`PixelSourceKind::Camera`] source can; the default refuses.
+    fn start(&mut self, camera: Camera) -> Result<(), CameraRefused> {
+        let _ = camera;
+        Err(CameraRefused)
+    }
+
+    /// Stops capturing (`StopCapture`, or the requested frames are done).
+    fn stop(&mut self) {}
+
+    /// Waits for the next run of pixels.
+    ///
+    /// Must be cancel-safe: the device races it against the link and drops
+    /// the future when a host frame arrives first; no pixels may be lost by
+    /// that. A source with nothing to give never resolves.
+    async fn next(&mut self) -> PixelRun<'_>;
+}
+
+/// No pixel source: pixels come only in `PixelRows` messages (a camera
+/// that the host emulates over the link).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct LinkOnly;
+
+impl PixelSource for LinkOnly {
+    fn kind(&self) -> PixelSourceKind {
+        PixelSourceKind::Link
+    }
+
+    async fn next(&mut self) -> PixelRun<'_> {
+        core::future::pending().await
+    }
+}
+
+/// Pixels from a second byte stream that carries the same frames as the
+/// link, holding `PixelRows` messages (other messages and damaged frames
+/// are skipped): e.g. a file or FIFO that the host writes and the board
+/// reads through semihosting, much faster than an emulated UART.
+///
+/// Cancel-safe if `R::read` is: all state is kept in the struct.
+pub struct PixelRowsStream<'b, R> {
+    reader: R,
+    frames: FrameReader<&'b mut [u8]>,
+    pixels: &'b mut [u16],
+    ended: bool,
+    /// Frames skipped because they were damaged or not `PixelRows`.
+    pub skipped: u32,
+}
+
+impl<'b, R: Read> PixelRowsStream<'b, R> {
+    /// `frame_buffer`: at least [`MAX_FRAME_LEN`] bytes; `pixels`: at least
+    /// `MAX_PIXEL_BYTES / 2` (longer runs are cut, and the device then sees
+    /// a gap).
+    ///
+    /// [`MAX_FRAME_LEN`]: brightpix_protocol::wire::MAX_FRAME_LEN
+    pub fn new(reader: R, frame_buffer: &'b mut [u8], pixels: &'b mut [u16]) -> Self {
+        PixelRowsStream {
+            reader,
+            frames: FrameReader::new(frame_buffer),
+            pixels,
+            ended: false,
+            skipped: 0,
+        }
+    }
+}
+
+impl<R: Read> PixelSource for PixelRowsStream<'_, R> {
+    fn kind(&self) -> PixelSourceKind {
+        PixelSourceKind::Stream
+    }
+
+    async fn next(&mut self) -> PixelRun<'_> {
+        loop {
+            let mut found = None;
+            while let Some(received) = self.frames.next_frame() {
+                match received {
+                    Received::Frame(bytes) => match decode::<HostMessage>(bytes) {
+                        Ok(HostMessage::PixelRows {
+                            frame,
+                            first_pixel,
+                            pixels,
+                        }) => {
+                            let n = pixels_from_le(pixels, self.pixels);
+                            found = Some((frame, first_pixel, n));
+                            break;
+                        }
+                        _ => self.skipped = self.skipped.saturating_add(1),
+                    },
+                    Received::TooLong => self.skipped = self.skipped.saturating_add(1),
+                }
+            }
+            if let Some((frame, first_pixel, n)) = found {
+                return PixelRun {
+                    frame,
+                    first_pixel,
+                    pixels: &self.pixels[..n],
+                };
+            }
+            if self.ended {
+                return core::future::pending().await;
+            }
+            match self.reader.read(self.frames.space()).await {
+                Ok(0) | Err(_) => self.ended = true,
+                Ok(n) => self.frames.advance(n),
+            }
+        }
+    }
+}

@@ -1,0 +1,1444 @@
+//! The firmware's device loop on the host, over an in-memory link: the
+//! host side speaks the wire protocol through `brightpix_protocol::wire`,
+//! the device is the same `brightpix_firmware::device::Device` the boards
+//! run. Slopes are compared with a direct run of the engine.
+
+use std::cell::RefCell;
+use std::collections::VecDeque;
+use std::convert::Infallible;
+use std::rc::Rc;
+use std::task::Poll;
+
+use brightpix::engine_runner::EngineBuffers;
+use brightpix_firmware::device::embedded_io_async::{ErrorType, Read, Write};
+use brightpix_firmware::device::{
+    CameraRefused, ConfigSlot, Device, DeviceBuffers, LinkError, LinkOnly, PixelRowsStream,
+    PixelRun, PixelSource,
+};
+use brightpix_firmware::engine::{
+    Engine, EngineMemory, LevelFilterState, OpenWindow, SubapertureResult,
+};
+use brightpix_protocol::wire::tables::write_table;
+use brightpix_protocol::wire::{
+    decode, encode, Ack, CapacityKind, ConfigFault, ConfigHeader, DeviceError, DeviceMessage,
+    FrameFault, FrameReader, Hello, HostMessage, PixelRowsPlan, PixelSourceKind, Received,
+    SlopeEntry, Status, Table, TablePosition, UploadPlan, CRC32, MAX_CHUNK_BYTES, MAX_FRAME_LEN,
+    MAX_PIXEL_BYTES, PROTOCOL_VERSION, SCHEMA_HASH, SLOPES_PER_MESSAGE,
+};
+use brightpix_protocol::{
+    Calibration, Camera, Centroid, Config, ConfigError, LevelFilter, MemoryKind, PixelCount,
+    RegularGrid, Selection, SelectionRule, SubapertureWindow,
+};
+use brightpix_tests::case;
+use embassy_futures::block_on;
+use proptest::prelude::*;
+
+// --- the in-memory link ------------------------------------------------------
+
+#[derive(Default)]
+struct LinkState {
+    input: VecDeque<u8>,
+    output: Vec<u8>,
+    /// When the input is empty: end of stream (read returns 0) or wait.
+    closed: bool,
+    /// Largest read, to exercise frames split across reads.
+    max_read: usize,
+}
+
+#[derive(Clone)]
+struct Link(Rc<RefCell<LinkState>>);
+
+impl ErrorType for Link {
+    type Error = Infallible;
+}
+
+impl Read for Link {
+    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
+        std::future::poll_fn(|_| {
+            let mut s = self.0.borrow_mut();
+            if !s.input.is_empty() {
+                let n = buf.len().min(s.input.len()).min(s.max_read.max(1));
+                for b in &mut buf[..n] {
+                    *b = s.input.pop_front().unwrap();
+                }
+                Poll::Ready(Ok(n))
+            } else if s.closed {
+                Poll::Ready(Ok(0))
+            } else {
+                Poll::Pending
+            }
+        })
+        .await
+    }
+}
+
+impl Write for Link {
+    async fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
+        self.0.borrow_mut().output.extend_from_slice(buf);
+        Ok(buf.len())
+    }
+    async fn flush(&mut self) -> Result<(), Infallible> {
+        Ok(())
+    }
+}
+
+// --- device storage on the heap ----------------------------------------------
+
+#[derive(Clone, Copy)]
+struct Sizes {
+    subapertures: usize,
+    pixels: usize,
+    open: usize,
+    entries: usize,
+    results: usize,
+}
+
+const SIZES: Sizes = Sizes {
+    subapertures: 256,
+    pixels: 64 * 64,
+    open: 64,
+    entries: 64 * 40,
+    results: 64,
+};
+
+struct SlotVecs {
+    windows: Vec<SubapertureWindow>,
+    counts: Vec<u16>,
+    references: Vec<[i32; 2]>,
+    background: Vec<i32>,
+    gain: Vec<u16>,
+}
+
+struct HeapStorage {
+    slots: [SlotVecs; 2],
+    order: Vec<u16>,
+    level_filters: Vec<LevelFilterState>,
+    open: Vec<OpenWindow>,
+    active: Vec<u16>,
+    free: Vec<u16>,
+    values: Vec<i32>,
+    positions: Vec<u16>,
+    vet_order: Vec<u16>,
+    vet_scratch: Vec<u16>,
+    results: Vec<SubapertureResult>,
+    rx: Vec<u8>,
+    tx: Vec<u8>,
+    pixels: Vec<u16>,
+}
+
+impl HeapStorage {
+    fn new(z: Sizes) -> Self {
+        let slot = || SlotVecs {
+            windows: vec![
+                SubapertureWindow {
+                    x: 0,
+                    y: 0,
+                    width: 0,
+                    height: 0
+                };
+                z.subapertures
+            ],
+            counts: vec![0; z.subapertures],
+            references: vec![[0; 2]; z.subapertures],
+            background: vec![0; z.pixels],
+            gain: vec![0; z.pixels],
+        };
+        let none = SubapertureResult {
+            index: 0,
+            slope_x: 0,
+            slope_y: 0,
+            flux: 0,
+            valid: false,
+        };
+        HeapStorage {
+            slots: [slot(), slot()],
+            order: vec![0; z.subapertures],
+            level_filters: vec![LevelFilterState::RESET; z.subapertures],
+            open: vec![OpenWindow::CLOSED; z.open],
+            active: vec![0; z.open],
+            free: vec![0; z.open],
+            values: vec![0; z.entries],
+            positions: vec![0; z.entries],
+            vet_order: vec![0; z.subapertures],
+            vet_scratch: vec![0; z.subapertures],
+            results: vec![none; z.results],
+            rx: vec![0; MAX_FRAME_LEN],
+            tx: vec![0; MAX_FRAME_LEN],
+            pixels: vec![0; MAX_PIXEL_BYTES / 2],
+        }
+    }
+
+    fn buffers(&mut self) -> DeviceBuffers<'_> {
+        fn slot(s: &mut SlotVecs) -> ConfigSlot<'_> {
+            ConfigSlot::new(
+                &mut s.windows,
+                &mut s.counts,
+                &mut s.references,
+                &mut s.background,
+                &mut s.gain,
+            )
+        }
+        let [a, b] = &mut self.slots;
+        DeviceBuffers {
+            slots: [slot(a), slot(b)],
+            engine: EngineMemory {
+                order: &mut self.order,
+                level_filters: &mut self.level_filters,
+                open: &mut self.open,
+                active: &mut self.active,
+                free: &mut self.free,
+                values: &mut self.values,
+                positions: &mut self.positions,
+            },
+            order: &mut self.vet_order,
+            scratch: &mut self.vet_scratch,
+            results: &mut self.results,
+            rx: &mut self.rx,
+            tx: &mut self.tx,
+            pixels: &mut self.pixels,
+        }
+    }
+}
+
+// --- the host side -------------------------------------------------------------
+
+/// A device message, owned.
+#[derive(Clone, Debug, PartialEq, Eq)]
+enum Reply {
+    Hello {
+        version: u16,
+        schema: u64,
+        board: String,
+        source: PixelSourceKind,
+        max_subapertures: u32,
+    },
+    Ack(Ack),
+    Error(DeviceError),
+    Status(Status),
+    Slopes {
+        frame: u32,
+        results: Vec<SlopeEntry>,
+    },
+    FrameDone {
+        frame: u32,
+        count: u32,
+    },
+}
+
+impl From<DeviceMessage<'_>> for Reply {
+    fn from(m: DeviceMessage<'_>) -> Self {
+        match m {
+            DeviceMessage::HelloReply(h) => Reply::Hello {
+                version: h.version,
+                schema: h.schema,
+                board: h.capabilities.board.to_string(),
+                source: h.capabilities.pixel_source,
+                max_subapertures: h.capabilities.max_subapertures,
+            },
+            DeviceMessage::Ack(a) => Reply::Ack(a),
+            DeviceMessage::Error(e) => Reply::Error(e),
+            DeviceMessage::Status(s) => Reply::Status(s),
+            DeviceMessage::Slopes { frame, results } => Reply::Slopes {
+                frame,
+                results: results.to_vec(),
+            },
+            DeviceMessage::FrameDone { frame, count } => Reply::FrameDone { frame, count },
+        }
+    }
+}
+
+struct Host {
+    link: Rc<RefCell<LinkState>>,
+    reader: FrameReader<Vec<u8>>,
+}
+
+impl Host {
+    fn send(&self, message: &HostMessage<'_>) {
+        let mut buf = vec![0u8; MAX_FRAME_LEN];
+        let frame = encode(message, &mut buf).unwrap();
+        self.send_raw(frame);
+    }
+
+    fn send_raw(&self, bytes: &[u8]) {
+        self.link.borrow_mut().input.extend(bytes);
+    }
+
+    fn hello(&self) {
+        self.send(&HostMessage::Hello(Hello::CURRENT));
+    }
+
+    /// Every message of an upload of `config`.
+    fn upload(&self, config: Config<'_>, upload_id: u32, chunk: usize) {
+        let mut plan = UploadPlan::new(config, upload_id, chunk);
+        let mut scratch = vec![0u8; MAX_CHUNK_BYTES];
+        while let Some(m) = plan.next(&mut scratch) {
+            self.send(&m);
+        }
+    }
+
+    fn frame(&self, frame: u32, pixels: &[u16], per_message: usize) {
+        let mut plan = PixelRowsPlan::new(frame, pixels, per_message);
+        let mut scratch = vec![0u8; MAX_PIXEL_BYTES];
+        while let Some(m) = plan.next(&mut scratch) {
+            self.send(&m);
+        }
+    }
+
+    /// `PixelRows` for pixels `first ..` of a frame.
+    fn frame_from(&self, frame: u32, pixels: &[u16], first: usize, per_message: usize) {
+        let mut bytes = vec![0u8; 2 * per_message];
+        for (k, part) in pixels[first..].chunks(per_message).enumerate() {
+            let n = brightpix_protocol::wire::tables::pixels_to_le(part, &mut bytes);
+            self.send(&HostMessage::PixelRows {
+                frame,
+                first_pixel: (first + k * per_message) as u32,
+                pixels: &bytes[..n],
+            });
+        }
+    }
+
+    /// Everything the device sent since the last call.
+    fn replies(&mut self) -> Vec<Reply> {
+        let output = std::mem::take(&mut self.link.borrow_mut().output);
+        let mut out = Vec::new();
+        let mut rest = &output[..];
+        while !rest.is_empty() {
+            let n = self.reader.push(rest);
+            rest = &rest[n..];
+            while let Some(received) = self.reader.next_frame() {
+                match received {
+                    Received::Frame(f) => out.push(Reply::from(
+                        decode::<DeviceMessage>(f).expect("the device sends valid frames"),
+                    )),
+                    Received::TooLong => panic!("the device sent a frame too long"),
+                }
+            }
+        }
+        assert_eq!(self.reader.pending(), 0, "a partial frame from the device");
+        out
+    }
+}
+
+fn setup(sizes: Sizes, max_read: usize) -> (HeapStorage, Host, Link) {
+    let state = Rc::new(RefCell::new(LinkState {
+        closed: true,
+        max_read,
+        ..LinkState::default()
+    }));
+    let host = Host {
+        link: state.clone(),
+        reader: FrameReader::new(vec![0u8; MAX_FRAME_LEN]),
+    };
+    (HeapStorage::new(sizes), host, Link(state))
+}
+
+/// Runs the device until it has handled all input.
+fn run<C: PixelSource>(device: &mut Device<'_, Link, C>) {
+    match block_on(device.run()) {
+        Err(LinkError::Closed) => {}
+        other => panic!("device stopped with {other:?}"),
+    }
+}
+
+// --- configurations and frames ---------------------------------------------------
+
+struct Owned {
+    camera: Camera,
+    windows: Vec<SubapertureWindow>,
+    counts: Option<Vec<u16>>,
+    n: u16,
+    background: Option<Vec<i32>>,
+    gain: Option<Vec<u16>>,
+    threshold: Option<i32>,
+    rule: SelectionRule,
+    level_filter: Option<LevelFilter>,
+    references: Option<Vec<[i32; 2]>>,
+    min_flux: i64,
+}
+
+impl Owned {
+    fn config(&self) -> Config<'_> {
+        Config {
+            camera: self.camera,
+            windows: &self.windows,
+            calibration: Calibration {
+                background: self.background.as_deref(),
+                gain: self.gain.as_deref(),
+                threshold: self.threshold,
+            },
+            selection: Selection {
+                rule: self.rule,
+                count: match &self.counts {
+                    Some(list) => PixelCount::PerSubaperture(list),
+                    None => PixelCount::All(self.n),
+                },
+                level_filter: self.level_filter,
+            },
+            centroid: Centroid {
+                reference_slopes: self.references.as_deref(),
+                min_flux: self.min_flux,
+            },
+        }
+    }
+}
+
+fn grid(columns: u16, rows: u16, width: u16, height: u16) -> Vec<SubapertureWindow> {
+    RegularGrid {
+        x: 0,
+        y: 0,
+        columns,
+        rows,
+        width,
+        height,
+        pitch_x: width,
+        pitch_y: height,
+    }
+    .windows()
+    .collect()
+}
+
+const CAMERA: Camera = Camera {
+    width: 48,
+    height: 32,
+    bit_depth: 12,
+};
+
+/// Plain: subtract-next, N = 5, 6 x 4 windows of 8 x 8.
+fn config_a() -> Owned {
+    Owned {
+        camera: CAMERA,
+        windows: grid(6, 4, 8, 8),
+        counts: None,
+        n: 5,
+        background: None,
+        gain: None,
+        threshold: None,
+        rule: SelectionRule::SubtractNext,
+        level_filter: None,
+        references: None,
+        min_flux: 0,
+    }
+}
+
+/// Everything: maps, threshold, per-sub-aperture N, references, 4 x 4
+/// windows of 12 x 8, threshold rule.
+fn config_b() -> Owned {
+    let pixels = CAMERA.pixel_count();
+    Owned {
+        camera: CAMERA,
+        windows: grid(4, 4, 12, 8),
+        counts: Some((0..16).map(|k| 3 + k % 9).collect()),
+        n: 0,
+        background: Some((0..pixels as i32).map(|k| (k * 7919) % 801 - 400).collect()),
+        gain: Some((0..pixels).map(|k| 3500 + (k * 31 % 1200) as u16).collect()),
+        threshold: Some(40),
+        rule: SelectionRule::Threshold,
+        level_filter: None,
+        references: Some(
+            (0..16)
+                .map(|k| [k * 4099 - 30_000, 12_345 - k * 777])
+                .collect(),
+        ),
+        min_flux: 100,
+    }
+}
+
+/// Subtract-mean with a level filter (its state carries across frames).
+fn config_filtered() -> Owned {
+    Owned {
+        rule: SelectionRule::SubtractMean { count: 3 },
+        level_filter: Some(LevelFilter { gain_shift: 2 }),
+        counts: Some((0..24).map(|k| 4 + k % 6).collect()),
+        ..config_a()
+    }
+}
+
+/// Deterministic spots on noise.
+fn frames(camera: Camera, count: usize, seed: u64) -> Vec<Vec<u16>> {
+    let mut state = seed | 1;
+    let mut rng = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    let max = camera.max_raw() as u64;
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    (0..count)
+        .map(|_| {
+            let mut f: Vec<u16> = (0..w * h).map(|_| (rng() % 40) as u16).collect();
+            for _ in 0..(w * h / 40) {
+                let (x, y) = ((rng() % w as u64) as usize, (rng() % h as u64) as usize);
+                let peak = max / 2 + rng() % (max / 2);
+                for (dx, dy, div) in [(0, 0, 1), (1, 0, 3), (0, 1, 3), (1, 1, 5)] {
+                    if x + dx < w && y + dy < h {
+                        let p = &mut f[(y + dy) * w + x + dx];
+                        *p = (*p as u64).max(peak / div) as u16;
+                    }
+                }
+            }
+            f
+        })
+        .collect()
+}
+
+/// The engine itself, frame by frame, results in emission order.
+fn direct(config: Config<'_>, frames: &[Vec<u16>]) -> Vec<Vec<SubapertureResult>> {
+    let mut buffers = EngineBuffers::for_config(&config);
+    let mut engine = Engine::new(config, buffers.memory()).unwrap();
+    frames
+        .iter()
+        .map(|f| {
+            let mut out = Vec::new();
+            engine.push(f, &mut |r| out.push(r)).unwrap();
+            out
+        })
+        .collect()
+}
+
+fn entry(r: &SubapertureResult) -> SlopeEntry {
+    SlopeEntry {
+        index: r.index,
+        slope_x: r.slope_x,
+        slope_y: r.slope_y,
+        flux: r.flux,
+        valid: r.valid,
+    }
+}
+
+/// Slopes of `frame` in arrival order, the number of Slopes messages, and
+/// the FrameDone count.
+fn slopes_of(replies: &[Reply], frame: u32) -> (Vec<SlopeEntry>, usize, Option<u32>) {
+    let mut results = Vec::new();
+    let mut messages = 0;
+    let mut done = None;
+    for r in replies {
+        match r {
+            Reply::Slopes {
+                frame: f,
+                results: r,
+            } if *f == frame => {
+                assert!(done.is_none(), "slopes after FrameDone");
+                assert!(!r.is_empty() && r.len() <= SLOPES_PER_MESSAGE);
+                results.extend_from_slice(r);
+                messages += 1;
+            }
+            Reply::FrameDone { frame: f, count } if *f == frame => {
+                assert!(done.is_none(), "two FrameDone");
+                done = Some(*count);
+            }
+            _ => {}
+        }
+    }
+    (results, messages, done)
+}
+
+fn expect_verified(replies: &[Reply], frame: u32, expected: &[SubapertureResult]) {
+    let (got, _, done) = slopes_of(replies, frame);
+    let want: Vec<SlopeEntry> = expected.iter().map(entry).collect();
+    assert_eq!(got, want, "frame {frame}");
+    assert_eq!(done, Some(want.len() as u32), "frame {frame} FrameDone");
+}
+
+fn acks(replies: &[Reply]) -> Vec<Ack> {
+    replies
+        .iter()
+        .filter_map(|r| match r {
+            Reply::Ack(a) => Some(*a),
+            _ => None,
+        })
+        .collect()
+}
+
+fn errors(replies: &[Reply]) -> Vec<DeviceError> {
+    replies
+        .iter()
+        .filter_map(|r| match r {
+            Reply::Error(e) => Some(*e),
+            _ => None,
+        })
+        .collect()
+}
+
+fn status(host: &mut Host, device: &mut Device<'_, Link, LinkOnly>) -> Status {
+    host.send(&HostMessage::StatusRequest);
+    run(device);
+    match host.replies().as_slice() {
+        [Reply::Status(s)] => *s,
+        other => panic!("expected a status, got {other:?}"),
+    }
+}
+
+/// Uploads `config` and checks it was applied.
+fn configure(
+    host: &mut Host,
+    device: &mut Device<'_, Link, LinkOnly>,
+    config: Config<'_>,
+    id: u32,
+) {
+    host.upload(config, id, MAX_CHUNK_BYTES);
+    run(device);
+    let replies = host.replies();
+    assert_eq!(errors(&replies), []);
+    assert!(
+        matches!(acks(&replies).last(), Some(Ack::ConfigApplied { config_id, .. }) if *config_id == id),
+        "{replies:?}"
+    );
+}
+
+// --- tests ---------------------------------------------------------------------
+
+#[test]
+fn handshake_refuses_until_matching_hello() {
+    let (mut storage, mut host, link) = setup(SIZES, 7);
+    let mut device = Device::new(link, LinkOnly, storage.buffers(), "test-board");
+    // Nothing is served before a Hello.
+    host.send(&HostMessage::StatusRequest);
+    // A host of another schema is answered with the device's identity and refused.
+    host.send(&HostMessage::Hello(Hello {
+        version: PROTOCOL_VERSION,
+        schema: SCHEMA_HASH ^ 1,
+    }));
+    host.send(&HostMessage::StatusRequest);
+    // A host of a later protocol version whose Hello has grown a field: the
+    // device still recognises the frozen prefix and answers with its identity.
+    let future_hello = [0x00, 0x02, 0x05, 0x07]; // variant 0, version 2, schema 5, extra
+    host.send_raw(&frame_of(&future_hello));
+    host.send(&HostMessage::StatusRequest);
+    host.hello();
+    host.send(&HostMessage::StatusRequest);
+    run(&mut device);
+    let replies = host.replies();
+    let hello = Reply::Hello {
+        version: PROTOCOL_VERSION,
+        schema: SCHEMA_HASH,
+        board: "test-board".into(),
+        source: PixelSourceKind::Link,
+        max_subapertures: SIZES.subapertures as u32,
+    };
+    assert_eq!(
+        replies,
+        [
+            Reply::Error(DeviceError::HelloRequired),
+            hello.clone(),
+            Reply::Error(DeviceError::HelloRequired),
+            hello.clone(),
+            Reply::Error(DeviceError::HelloRequired),
+            hello,
+            Reply::Status(Status::default()),
+        ]
+    );
+    let caps = device.capabilities();
+    assert_eq!(caps.max_camera_pixels, SIZES.pixels as u32);
+    assert_eq!(caps.max_open_windows, SIZES.open as u32);
+    assert_eq!(caps.max_results_per_row, SIZES.results as u32);
+    assert_eq!(caps.max_frame_bytes, MAX_FRAME_LEN as u32);
+}
+
+#[test]
+fn streamed_slopes_equal_a_direct_engine_run() {
+    let owned = config_filtered();
+    let config = owned.config();
+    let frames = frames(CAMERA, 12, 1);
+    let expected = direct(config, &frames);
+    let (mut storage, mut host, link) = setup(SIZES, 61);
+    let mut device = Device::new(link, LinkOnly, storage.buffers(), "t");
+    host.hello();
+    run(&mut device);
+    host.replies();
+    configure(&mut host, &mut device, config, 11);
+    // Message sizes that cut rows anywhere.
+    for (k, f) in frames.iter().enumerate() {
+        host.frame(100 + k as u32, f, [37, 48, 480, 1][k % 4]);
+    }
+    run(&mut device);
+    let replies = host.replies();
+    assert_eq!(errors(&replies), []);
+    for (k, want) in expected.iter().enumerate() {
+        expect_verified(&replies, 100 + k as u32, want);
+        // One message per finished row of sub-apertures: the host sees each
+        // row as soon as its last camera row arrives.
+        assert_eq!(slopes_of(&replies, 100 + k as u32).1, 4);
+    }
+    let s = status(&mut host, &mut device);
+    assert_eq!(s.frames_processed, 12);
+    assert_eq!(s.config_id, Some(11));
+    assert_eq!((s.crc_errors, s.decode_errors, s.frames_dropped), (0, 0, 0));
+}
+
+#[test]
+fn a_long_row_of_results_is_split_into_messages() {
+    let owned = Owned {
+        camera: Camera {
+            width: 160,
+            height: 8,
+            bit_depth: 16,
+        },
+        windows: grid(40, 1, 4, 8),
+        ..config_a()
+    };
+    let config = owned.config();
+    let frames = frames(owned.camera, 2, 5);
+    let expected = direct(config, &frames);
+    let (mut storage, mut host, link) = setup(SIZES, 1000);
+    let mut device = Device::new(link, LinkOnly, storage.buffers(), "t");
+    host.hello();
+    configure(&mut host, &mut device, config, 1);
+    for (k, f) in frames.iter().enumerate() {
+        host.frame(k as u32, f, 480);
+    }
+    run(&mut device);
+    let replies = host.replies();
+    for (k, want) in expected.iter().enumerate() {
+        expect_verified(&replies, k as u32, want);
+        assert_eq!(slopes_of(&replies, k as u32).1, 2, "32 + 8 results");
+    }
+}
+
+#[test]
+fn failed_uploads_leave_the_previous_configuration_running() {
+    let a = config_a();
+    let b = config_b();
+    let frames = frames(CAMERA, 2, 9);
+    let with_a = direct(a.config(), &frames);
+    let with_b = direct(b.config(), &frames);
+    assert_ne!(with_a, with_b);
+    let (mut storage, mut host, link) = setup(SIZES, 300);
+    let mut device = Device::new(link, LinkOnly, storage.buffers(), "t");
+    host.hello();
+    configure(&mut host, &mut device, a.config(), 1);
+
+    let b_header = ConfigHeader::of(&b.config());
+    let mut chunk = vec![0u8; 96];
+    let n = write_table(&b.config(), Table::Windows, 0, &mut chunk);
+    let windows_chunk = &chunk[..n];
+    let begin = |id| HostMessage::ConfigBegin {
+        upload_id: id,
+        header: b_header,
+    };
+    let first_chunk = |id| HostMessage::ConfigChunk {
+        upload_id: id,
+        table: Table::Windows,
+        offset: 0,
+        bytes: windows_chunk,
+    };
+    let verify = |host: &mut Host,
+                  device: &mut Device<'_, Link, LinkOnly>,
+                  scenario: &str,
+                  expected_error: Option<DeviceError>| {
+        run(device);
+        let replies = host.replies();
+        let errs = errors(&replies);
+        match expected_error {
+            Some(e) => assert!(errs.contains(&e), "{scenario}: {replies:?}"),
+            None => assert_eq!(errs, [], "{scenario}"),
+        }
+        host.frame(7, &frames[0], 480);
+        host.frame(8, &frames[1], 200);
+        run(device);
+        let replies = host.replies();
+        expect_verified(&replies, 7, &with_a[0]);
+        expect_verified(&replies, 8, &with_a[1]);
+        assert_eq!(status(host, device).config_id, Some(1), "{scenario}");
+    };
+
+    // Begin + a chunk, then Abort.
+    host.send(&begin(2));
+    host.send(&first_chunk(2));
+    host.send(&HostMessage::ConfigAbort);
+    verify(&mut host, &mut device, "abort", None);
+
+    // Begin + a chunk, then a new Begin, then a commit of the incomplete one.
+    host.send(&begin(3));
+    host.send(&first_chunk(3));
+    host.send(&begin(4));
+    host.send(&first_chunk(4));
+    host.send(&HostMessage::ConfigCommit {
+        upload_id: 4,
+        crc32: 0,
+    });
+    verify(
+        &mut host,
+        &mut device,
+        "incomplete",
+        Some(DeviceError::UploadIncomplete {
+            table: Table::Windows,
+            received: 96,
+            expected: 16 * 8,
+        }),
+    );
+
+    // A chunk for the replaced upload id, then one out of order.
+    host.send(&begin(5));
+    host.send(&first_chunk(4));
+    host.send(&HostMessage::ConfigChunk {
+        upload_id: 5,
+        table: Table::Windows,
+        offset: 8,
+        bytes: &windows_chunk[..8],
+    });
+    host.send(&HostMessage::ConfigCommit {
+        upload_id: 5,
+        crc32: 0,
+    });
+    run(&mut device);
+    let replies = host.replies();
+    assert_eq!(
+        errors(&replies),
+        [
+            DeviceError::UploadMismatch {
+                expected: 5,
+                found: 4
+            },
+            DeviceError::ChunkOutOfOrder {
+                expected: Some(TablePosition {
+                    table: Table::Windows,
+                    offset: 0
+                }),
+                found: TablePosition {
+                    table: Table::Windows,
+                    offset: 8
+                },
+            },
+            DeviceError::NoUpload,
+        ]
+    );
+    verify(&mut host, &mut device, "out of order", None);
+
+    // A complete upload with a wrong CRC.
+    let mut plan = UploadPlan::new(b.config(), 6, 500);
+    let mut scratch = vec![0u8; MAX_CHUNK_BYTES];
+    while let Some(m) = plan.next(&mut scratch) {
+        match m {
+            HostMessage::ConfigCommit { upload_id, crc32 } => {
+                host.send(&HostMessage::ConfigCommit {
+                    upload_id,
+                    crc32: crc32 ^ 0x100,
+                })
+            }
+            m => host.send(&m),
+        }
+    }
+    let crc = brightpix_protocol::wire::tables::tables_crc(&b.config());
+    verify(
+        &mut host,
+        &mut device,
+        "bad crc",
+        Some(DeviceError::UploadCrc {
+            computed: crc,
+            claimed: crc ^ 0x100,
+        }),
+    );
+
+    // A complete, intact upload of an invalid configuration.
+    let mut invalid = config_b();
+    invalid.windows[3].x = 40; // 40 + 12 > 48
+    host.upload(invalid.config(), 7, MAX_CHUNK_BYTES);
+    verify(
+        &mut host,
+        &mut device,
+        "invalid",
+        Some(DeviceError::Config(ConfigFault::WindowOutsideCamera {
+            index: 3,
+        })),
+    );
+
+    // A valid configuration that does not fit the engine's memory: 80 windows
+    // open at once (SIZES.open is 64).
+    let wide = Owned {
+        camera: Camera {
+            width: 160,
+            height: 32,
+            bit_depth: 12,
+        },
+        windows: grid(80, 1, 2, 32),
+        ..config_a()
+    };
+    host.upload(wide.config(), 8, MAX_CHUNK_BYTES);
+    verify(
+        &mut host,
+        &mut device,
+        "memory",
+        Some(DeviceError::Config(
+            ConfigError::MemoryBudget {
+                needed: 80,
+                available: 64,
+                what: MemoryKind::OpenWindows,
+            }
+            .into(),
+        )),
+    );
+
+    // Larger than the device's tables.
+    let mut huge = config_a();
+    huge.camera = Camera {
+        width: 1024,
+        height: 1024,
+        bit_depth: 12,
+    };
+    huge.background = Some(vec![0; 1024 * 1024]);
+    host.upload(huge.config(), 9, MAX_CHUNK_BYTES);
+    verify(
+        &mut host,
+        &mut device,
+        "capacity",
+        Some(DeviceError::Capacity {
+            what: CapacityKind::CameraPixels,
+            needed: 1024 * 1024,
+            available: SIZES.pixels as u32,
+        }),
+    );
+
+    // And finally B, intact: it replaces A.
+    configure(&mut host, &mut device, b.config(), 10);
+    host.frame(1, &frames[0], 480);
+    host.frame(2, &frames[1], 33);
+    run(&mut device);
+    let replies = host.replies();
+    expect_verified(&replies, 1, &with_b[0]);
+    expect_verified(&replies, 2, &with_b[1]);
+}
+
+#[test]
+fn a_failed_commit_mid_frame_does_not_disturb_the_frame() {
+    let a = config_filtered();
+    let frames = frames(CAMERA, 3, 17);
+    let expected = direct(a.config(), &frames);
+    let (mut storage, mut host, link) = setup(SIZES, 64);
+    let mut device = Device::new(link, LinkOnly, storage.buffers(), "t");
+    host.hello();
+    configure(&mut host, &mut device, a.config(), 1);
+    host.frame(0, &frames[0], 480);
+    // Half of frame 1, a whole upload that fails validation, the other half.
+    let half = frames[1].len() / 2;
+    host.frame(1, &frames[1][..half], 100);
+    let mut invalid = config_b();
+    invalid.counts.as_mut().unwrap()[2] = 0;
+    host.upload(invalid.config(), 2, 256);
+    host.frame_from(1, &frames[1], half, 100);
+    host.frame(2, &frames[2], 480);
+    run(&mut device);
+    let replies = host.replies();
+    assert_eq!(
+        errors(&replies),
+        [DeviceError::Config(ConfigFault::PixelCountZero {
+            index: 2
+        })]
+    );
+    for (k, want) in expected.iter().enumerate() {
+        expect_verified(&replies, k as u32, want);
+    }
+}
+
+#[test]
+fn a_successful_commit_mid_frame_drops_that_frame() {
+    let a = config_a();
+    let b = config_b();
+    let frames = frames(CAMERA, 2, 23);
+    let with_b = direct(b.config(), &frames[1..]);
+    let (mut storage, mut host, link) = setup(SIZES, 64);
+    let mut device = Device::new(link, LinkOnly, storage.buffers(), "t");
+    host.hello();
+    configure(&mut host, &mut device, a.config(), 1);
+    host.frame(0, &frames[0][..500], 100);
+    host.upload(b.config(), 2, MAX_CHUNK_BYTES);
+    host.frame_from(0, &frames[0], 500, 100); // the rest of the dropped frame: ignored
+    host.frame(1, &frames[1], 480);
+    run(&mut device);
+    let replies = host.replies();
+    assert_eq!(
+        errors(&replies),
+        [DeviceError::Frame {
+            frame: 0,
+            fault: FrameFault::Reconfigured
+        }]
+    );
+    expect_verified(&replies, 1, &with_b[0]);
+    let s = status(&mut host, &mut device);
+    assert_eq!(
+        (s.frames_dropped, s.frames_processed, s.config_id),
+        (1, 1, Some(2))
+    );
+}
+
+/// COBS, as PROTOCOL.md describes it (delimiter excluded).
+fn cobs_encode(data: &[u8]) -> Vec<u8> {
+    let mut out = vec![0];
+    let mut code_at = 0;
+    for &b in data {
+        if b != 0 {
+            out.push(b);
+        }
+        if b == 0 || out.len() - code_at == 255 {
+            out[code_at] = (out.len() - code_at) as u8;
+            code_at = out.len();
+            out.push(0);
+        }
+    }
+    out[code_at] = (out.len() - code_at) as u8;
+    out
+}
+
+fn cobs_decode(data: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < data.len() {
+        let code = data[i] as usize;
+        out.extend_from_slice(&data[i + 1..i + code]);
+        i += code;
+        if code < 255 && i < data.len() {
+            out.push(0);
+        }
+    }
+    out
+}
+
+/// A frame of any postcard bytes.
+fn frame_of(body: &[u8]) -> Vec<u8> {
+    let mut plain = body.to_vec();
+    plain.extend_from_slice(&CRC32.checksum(body).to_le_bytes());
+    let mut frame = cobs_encode(&plain);
+    frame.push(0);
+    frame
+}
+
+/// A frame whose CRC is wrong: the postcard bytes are intact.
+fn with_bad_crc(message: &HostMessage<'_>) -> Vec<u8> {
+    let mut buf = vec![0u8; MAX_FRAME_LEN];
+    let len = encode(message, &mut buf).unwrap().len();
+    let mut plain = cobs_decode(&buf[..len - 1]);
+    let n = plain.len();
+    let crc = u32::from_le_bytes(plain[n - 4..].try_into().unwrap());
+    assert_eq!(
+        crc,
+        CRC32.checksum(&plain[..n - 4]),
+        "PROTOCOL.md's framing"
+    );
+    plain[n - 4] ^= 1;
+    let mut frame = cobs_encode(&plain);
+    assert_eq!(cobs_encode(&cobs_decode(&frame)), frame);
+    frame.push(0);
+    frame
+}
+
+#[test]
+fn a_corrupted_frame_is_counted_and_the_next_frame_verifies() {
+    let a = config_a();
+    let frames = frames(CAMERA, 3, 31);
+    let expected = direct(a.config(), &frames);
+    let (mut storage, mut host, link) = setup(SIZES, 97);
+    let mut device = Device::new(link, LinkOnly, storage.buffers(), "t");
+    host.hello();
+    configure(&mut host, &mut device, a.config(), 1);
+    // Frame 0 with its third PixelRows message corrupted on the link.
+    let mut plan = PixelRowsPlan::new(0, &frames[0], 200);
+    let mut scratch = vec![0u8; MAX_PIXEL_BYTES];
+    let mut k = 0;
+    while let Some(m) = plan.next(&mut scratch) {
+        if k == 2 {
+            host.send_raw(&with_bad_crc(&m));
+        } else {
+            host.send(&m);
+        }
+        k += 1;
+    }
+    host.frame(1, &frames[1], 200);
+    // A random bit flip in frame 2's first message: caught as a CRC or
+    // COBS/decode error, then frame 2 is resent whole as frame 3.
+    let mut buf = vec![0u8; MAX_FRAME_LEN];
+    let mut first = PixelRowsPlan::new(2, &frames[2], 200);
+    let len = encode(&first.next(&mut scratch).unwrap(), &mut buf)
+        .unwrap()
+        .len();
+    buf[len / 2] ^= if buf[len / 2] == 0x10 { 0x20 } else { 0x10 };
+    host.send_raw(&buf[..len]);
+    host.frame(3, &frames[2], 200);
+    run(&mut device);
+    let replies = host.replies();
+    let errs = errors(&replies);
+    assert_eq!(errs[0], DeviceError::Crc);
+    assert_eq!(
+        errs[1],
+        DeviceError::Frame {
+            frame: 0,
+            fault: FrameFault::Gap {
+                expected: 400,
+                found: 600
+            }
+        }
+    );
+    assert!(matches!(errs[2], DeviceError::Crc | DeviceError::Decode));
+    assert_eq!(errs.len(), 3, "{errs:?}");
+    let (partial, _, done) = slopes_of(&replies, 0);
+    assert_eq!(done, None, "the corrupted frame is not reported complete");
+    // Results of the windows finished before the loss stand (SPEC.md §8).
+    assert_eq!(
+        partial,
+        expected[0][..partial.len()]
+            .iter()
+            .map(entry)
+            .collect::<Vec<_>>()
+    );
+    expect_verified(&replies, 1, &expected[1]);
+    expect_verified(&replies, 3, &expected[2]);
+    let s = status(&mut host, &mut device);
+    assert_eq!(s.crc_errors + s.decode_errors, 2);
+    assert_eq!(
+        (s.frames_dropped, s.overruns, s.frames_processed),
+        (1, 1, 2)
+    );
+}
+
+#[test]
+fn garbage_long_frames_and_bad_pixels_are_refused_without_harm() {
+    let a = config_a();
+    let frames = frames(CAMERA, 2, 41);
+    let expected = direct(a.config(), &frames);
+    let (mut storage, mut host, link) = setup(SIZES, 128);
+    let mut device = Device::new(link, LinkOnly, storage.buffers(), "t");
+    host.hello();
+    configure(&mut host, &mut device, a.config(), 1);
+    host.send_raw(&[1, 2, 3, 0]); // not COBS of a message
+    host.send_raw(&[0x42; 3000]); // longer than any frame
+    host.send_raw(&[0]);
+    let mut bad = frames[0].clone();
+    bad[5 * 48 + 7] = 4096; // 12-bit camera
+    host.frame(0, &bad, 480);
+    host.send(&HostMessage::PixelRows {
+        frame: 9,
+        first_pixel: 0,
+        pixels: &[1, 2, 3],
+    });
+    host.send(&HostMessage::PixelRows {
+        frame: 9,
+        first_pixel: 1500,
+        pixels: &[0; 200],
+    });
+    host.frame(1, &frames[1], 480);
+    run(&mut device);
+    let replies = host.replies();
+    assert_eq!(
+        errors(&replies),
+        [
+            DeviceError::Decode,
+            DeviceError::FrameTooLong,
+            DeviceError::Frame {
+                frame: 0,
+                fault: FrameFault::PixelOutOfRange {
+                    row: 5,
+                    column: 7,
+                    value: 4096
+                }
+            },
+            DeviceError::Frame {
+                frame: 9,
+                fault: FrameFault::OddLength
+            },
+            DeviceError::Frame {
+                frame: 9,
+                fault: FrameFault::Gap {
+                    expected: 0,
+                    found: 1500
+                }
+            },
+        ]
+    );
+    expect_verified(&replies, 1, &expected[1]);
+    let s = status(&mut host, &mut device);
+    assert_eq!(
+        (s.decode_errors, s.pixel_errors, s.frames_processed),
+        (2, 1, 1)
+    );
+}
+
+#[test]
+fn unconfigured_device_refuses_pixels() {
+    let (mut storage, mut host, link) = setup(SIZES, 128);
+    let mut device = Device::new(link, LinkOnly, storage.buffers(), "t");
+    host.hello();
+    host.send(&HostMessage::PixelRows {
+        frame: 0,
+        first_pixel: 0,
+        pixels: &[0; 8],
+    });
+    host.send(&HostMessage::ResetLevelFilters);
+    host.send(&HostMessage::Capture { frames: 1 });
+    run(&mut device);
+    let replies = host.replies();
+    assert_eq!(
+        errors(&replies),
+        [
+            DeviceError::NotConfigured,
+            DeviceError::NotConfigured,
+            DeviceError::NoCamera
+        ]
+    );
+}
+
+#[test]
+fn results_per_row_must_fit_the_queue() {
+    let a = config_a(); // 6 windows end in each row of windows
+    let (mut storage, mut host, link) = setup(
+        Sizes {
+            results: 5,
+            ..SIZES
+        },
+        128,
+    );
+    let mut device = Device::new(link, LinkOnly, storage.buffers(), "t");
+    host.hello();
+    host.upload(a.config(), 1, MAX_CHUNK_BYTES);
+    run(&mut device);
+    let replies = host.replies();
+    assert_eq!(
+        errors(&replies),
+        [DeviceError::Capacity {
+            what: CapacityKind::ResultsPerRow,
+            needed: 6,
+            available: 5
+        }]
+    );
+}
+
+#[test]
+fn level_filters_reset_on_request() {
+    let f = config_filtered();
+    let frames = frames(CAMERA, 4, 51);
+    let (mut storage, mut host, link) = setup(SIZES, 128);
+    let mut device = Device::new(link, LinkOnly, storage.buffers(), "t");
+    host.hello();
+    configure(&mut host, &mut device, f.config(), 1);
+    host.frame(0, &frames[0], 480);
+    host.frame(1, &frames[1], 480);
+    host.send(&HostMessage::ResetLevelFilters);
+    host.frame(2, &frames[2], 480);
+    host.frame(3, &frames[3], 480);
+    run(&mut device);
+    let replies = host.replies();
+    assert_eq!(acks(&replies), [Ack::LevelFiltersReset]);
+    let before = direct(f.config(), &frames[..2]);
+    let after = direct(f.config(), &frames[2..]);
+    expect_verified(&replies, 0, &before[0]);
+    expect_verified(&replies, 1, &before[1]);
+    expect_verified(&replies, 2, &after[0]);
+    expect_verified(&replies, 3, &after[1]);
+}
+
+// --- a device with its own camera --------------------------------------------------
+
+/// A camera that delivers `frames` a row at a time once started, then
+/// closes the link.
+struct TestCamera {
+    frames: Vec<Vec<u16>>,
+    width: usize,
+    started: bool,
+    next: usize,
+    link: Rc<RefCell<LinkState>>,
+}
+
+impl PixelSource for TestCamera {
+    fn kind(&self) -> PixelSourceKind {
+        PixelSourceKind::Camera
+    }
+
+    fn start(&mut self, camera: Camera) -> Result<(), CameraRefused> {
+        if camera.width as usize != self.width {
+            return Err(CameraRefused);
+        }
+        self.started = true;
+        Ok(())
+    }
+
+    fn stop(&mut self) {
+        self.started = false;
+        self.link.borrow_mut().closed = true;
+    }
+
+    async fn next(&mut self) -> PixelRun<'_> {
+        let frame_len = self.frames[0].len();
+        std::future::poll_fn(|_| {
+            if self.started && self.next < self.frames.len() * frame_len {
+                Poll::Ready(())
+            } else {
+                Poll::Pending
+            }
+        })
+        .await;
+        let (f, p) = (self.next / frame_len, self.next % frame_len);
+        self.next += self.width;
+        PixelRun {
+            frame: f as u32,
+            first_pixel: p as u32,
+            pixels: &self.frames[f][p..p + self.width],
+        }
+    }
+}
+
+#[test]
+fn capture_from_a_camera_streams_slopes() {
+    let a = config_filtered();
+    let frames = frames(CAMERA, 5, 61);
+    let expected = direct(a.config(), &frames[..3]);
+    let (mut storage, mut host, link) = setup(SIZES, 128);
+    let camera = TestCamera {
+        frames: frames.clone(),
+        width: CAMERA.width as usize,
+        started: false,
+        next: 0,
+        link: host.link.clone(),
+    };
+    let mut device = Device::new(link, camera, storage.buffers(), "cam");
+    host.hello();
+    host.upload(a.config(), 1, MAX_CHUNK_BYTES);
+    host.send(&HostMessage::Capture { frames: 3 });
+    host.send(&HostMessage::PixelRows {
+        frame: 0,
+        first_pixel: 0,
+        pixels: &[0; 2],
+    });
+    // The camera stops the link when the capture ends.
+    host.link.borrow_mut().closed = false;
+    run(&mut device);
+    let replies = host.replies();
+    assert_eq!(
+        errors(&replies),
+        [DeviceError::Unexpected {
+            message: brightpix_protocol::wire::MessageKind::PixelRows
+        }]
+    );
+    let acks = acks(&replies);
+    assert!(acks.contains(&Ack::CaptureStarted { frames: 3 }));
+    assert_eq!(acks.last(), Some(&Ack::CaptureStopped { frames: 3 }));
+    for (k, want) in expected.iter().enumerate() {
+        expect_verified(&replies, k as u32, want);
+    }
+    assert!(
+        slopes_of(&replies, 3).0.is_empty(),
+        "no frame after the capture"
+    );
+}
+
+/// A byte stream that closes the link when it runs dry.
+struct StreamReader {
+    data: VecDeque<u8>,
+    link: Rc<RefCell<LinkState>>,
+}
+
+impl ErrorType for StreamReader {
+    type Error = Infallible;
+}
+
+impl Read for StreamReader {
+    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
+        let n = buf.len().min(self.data.len()).min(333);
+        for b in &mut buf[..n] {
+            *b = self.data.pop_front().unwrap();
+        }
+        if n == 0 {
+            self.link.borrow_mut().closed = true;
+        }
+        Ok(n)
+    }
+}
+
+#[test]
+fn pixels_from_a_separate_stream() {
+    let a = config_filtered();
+    let frames = frames(CAMERA, 4, 71);
+    let expected = direct(a.config(), &frames);
+    let (mut storage, mut host, link) = setup(SIZES, 128);
+    // The stream: PixelRows frames, with some noise a host might leave in a file.
+    let mut data = Vec::new();
+    for (k, f) in frames.iter().enumerate() {
+        let mut plan = PixelRowsPlan::new(k as u32, f, 300);
+        let mut scratch = vec![0u8; MAX_PIXEL_BYTES];
+        let mut buf = vec![0u8; MAX_FRAME_LEN];
+        while let Some(m) = plan.next(&mut scratch) {
+            data.extend_from_slice(encode(&m, &mut buf).unwrap());
+        }
+        data.extend_from_slice(&[0, 0x33, 0x44, 0]); // ignored
+    }
+    let mut frame_buffer = vec![0u8; MAX_FRAME_LEN];
+    let mut pixels = vec![0u16; MAX_PIXEL_BYTES / 2];
+    let stream = PixelRowsStream::new(
+        StreamReader {
+            data: data.into(),
+            link: host.link.clone(),
+        },
+        &mut frame_buffer,
+        &mut pixels,
+    );
+    let mut device = Device::new(link, stream, storage.buffers(), "stream");
+    host.hello();
+    host.upload(a.config(), 1, MAX_CHUNK_BYTES);
+    host.link.borrow_mut().closed = false;
+    run(&mut device);
+    let replies = host.replies();
+    assert!(matches!(
+        &replies[0],
+        Reply::Hello {
+            source: PixelSourceKind::Stream,
+            ..
+        }
+    ));
+    assert_eq!(errors(&replies), []);
+    for (k, want) in expected.iter().enumerate() {
+        expect_verified(&replies, k as u32, want);
+    }
+    assert_eq!(device.source().skipped, 4);
+}
+
+// --- random configurations and frames ------------------------------------------------
+
+fn sizes_for(config: &Config<'_>) -> Sizes {
+    let n = config.windows.len();
+    Sizes {
+        subapertures: n,
+        pixels: config.camera.pixel_count(),
+        open: n,
+        entries: n * (65 + 16 + 1),
+        results: n,
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig {
+        cases: 256,
+        max_shrink_iters: 500,
+        ..ProptestConfig::default()
+    })]
+
+    /// Any configuration the differential tests generate, uploaded in
+    /// chunks of any size and streamed in messages of any size, gives the
+    /// engine's slopes.
+    #[test]
+    fn device_matches_the_engine_on_random_cases(
+        (case, frames, chunks) in case(),
+        chunk in 8usize..=960,
+        max_read in 1usize..=300,
+    ) {
+        let config = case.config();
+        let expected = direct(config, &frames);
+        let (mut storage, mut host, link) = setup(sizes_for(&config), max_read);
+        let mut device = Device::new(link, LinkOnly, storage.buffers(), "prop");
+        host.hello();
+        host.upload(config, 3, chunk);
+        for (k, f) in frames.iter().enumerate() {
+            host.frame(k as u32, f, chunks[k % chunks.len()]);
+        }
+        run(&mut device);
+        let replies = host.replies();
+        prop_assert_eq!(errors(&replies), []);
+        for (k, want) in expected.iter().enumerate() {
+            // Windows that end in the same camera row may come in another
+            // order when pixels arrive in other chunks (the engine emits a
+            // pushed run's windows by first column): compare by index.
+            let (mut got, _, done) = slopes_of(&replies, k as u32);
+            let mut want: Vec<SlopeEntry> = want.iter().map(entry).collect();
+            got.sort_by_key(|e| e.index);
+            want.sort_by_key(|e| e.index);
+            prop_assert_eq!(&got, &want);
+            prop_assert_eq!(done, Some(want.len() as u32));
+        }
+    }
+}
