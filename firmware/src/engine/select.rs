@@ -191,10 +191,7 @@ impl SelectionState {
             if p > min {
                 let evicted = heap[0];
                 let evicted_position = positions[0];
-                heap[0] = p;
-                positions[0] = pack(i, j);
-                sift_down(heap, positions);
-                min = heap[0];
+                min = replace_min(heap, positions, p, pack(i, j));
                 if R::KEEPS_TIES {
                     if min == evicted {
                         self.add_tie(evicted_position);
@@ -308,40 +305,62 @@ impl SelectionState {
 
 fn heapify(values: &mut [i32], positions: &mut [u16]) {
     for start in (0..values.len() / 2).rev() {
-        sift_down_from(values, positions, start);
+        sift_down(values, positions, start, values[start], positions[start]);
     }
 }
 
+/// Replaces the minimum of a full heap with `value` (larger than it) and
+/// restores the heap; returns the new minimum.
 #[inline(always)]
-fn sift_down(values: &mut [i32], positions: &mut [u16]) {
-    sift_down_from(values, positions, 0)
+fn replace_min(values: &mut [i32], positions: &mut [u16], value: i32, position: u16) -> i32 {
+    sift_down(values, positions, 0, value, position);
+    values[0]
 }
 
+/// Puts `value` (with `position`) into the hole at `hole` (`< values.len()`)
+/// and sifts it down. The smaller child is chosen without a branch; the only
+/// data-dependent branch is where `value` stops.
 #[inline(always)]
-fn sift_down_from(values: &mut [i32], positions: &mut [u16], mut i: usize) {
+fn sift_down(values: &mut [i32], positions: &mut [u16], hole: usize, value: i32, position: u16) {
     let n = values.len();
-    let value = values[i];
-    let position = positions[i];
-    loop {
-        let left = 2 * i + 1;
-        if left >= n {
-            break;
+    assert!(hole < n && positions.len() >= n);
+    // 1-based indices (children of `k` are `2k` and `2k + 1`, one shift)
+    // through pointers one entry before the slices (wrapping arithmetic: they
+    // point outside them); only indices 1..=n are dereferenced.
+    let v = values.as_mut_ptr().wrapping_sub(1);
+    let p = positions.as_mut_ptr().wrapping_sub(1);
+    // SAFETY: every index `k` dereferenced below is in `1..=n`, i.e. entry
+    // `k - 1 < n` of `values` (length n) and of `positions` (at least n):
+    // `hole` starts in `1..=n` (asserted) and only takes values of `child`
+    // or `left`; `left < n` (so `child <= left + 1 <= n`) and `left <= n`
+    // are checked by the conditions that guard their use.
+    unsafe {
+        let mut hole = hole + 1;
+        let mut left = 2 * hole;
+        while left < n {
+            let (l, r) = (*v.wrapping_add(left), *v.wrapping_add(left + 1));
+            // Branch-free: |values| < 2^25, so `r - l` cannot overflow and
+            // `right` is all ones exactly when `r < l`.
+            let right = (r - l) >> 31;
+            let smaller = l + ((r - l) & right);
+            let child = left + (right & 1) as usize;
+            if smaller >= value {
+                break;
+            }
+            *v.wrapping_add(hole) = smaller;
+            *p.wrapping_add(hole) = *p.wrapping_add(child);
+            hole = child;
+            left = 2 * hole;
         }
-        let right = left + 1;
-        let child = if right < n && values[right] < values[left] {
-            right
-        } else {
-            left
-        };
-        if values[child] >= value {
-            break;
+        // A last single child (the last entry) when n is even.
+        if left == n && *v.wrapping_add(left) < value {
+            *v.wrapping_add(hole) = *v.wrapping_add(left);
+            *p.wrapping_add(hole) = *p.wrapping_add(left);
+            hole = left;
         }
-        values[i] = values[child];
-        positions[i] = positions[child];
-        i = child;
+        *v.wrapping_add(hole) = value;
+        *p.wrapping_add(hole) = position;
     }
-    values[i] = value;
-    positions[i] = position;
 }
 
 fn sift_down_values(values: &mut [i32]) {
