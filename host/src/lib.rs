@@ -2,3 +2,4 @@
 pub mod config_file;
 pub mod io;
 pub mod reference;
+pub mod simulator;
