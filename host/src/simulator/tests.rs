@@ -459,7 +459,7 @@ fn sodium_spot_is_elongated_along_x() {
 /// Time per spot (run with `cargo test -p brightpix --release timing --
 /// --ignored --nocapture`).
 #[test]
-#[ignore]
+#[ignore = "prints time per spot, asserts nothing: machines are noisy, so timings are not tests; run by hand as the doc comment says"]
 fn timing() {
     for (name, p) in [
         ("ngs", SimulationParams::default()),
