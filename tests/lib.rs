@@ -140,10 +140,7 @@ pub fn frames(
         PixelDistribution::Full => (0..=max).boxed(),
         PixelDistribution::MostlySaturated => prop_oneof![3 => Just(max), 1 => 0..=max].boxed(),
     };
-    prop::collection::vec(
-        prop::collection::vec(pixel, camera.pixel_count()),
-        count,
-    )
+    prop::collection::vec(prop::collection::vec(pixel, camera.pixel_count()), count)
 }
 
 /// A full random case: configuration, frames and chunk lengths.
@@ -205,24 +202,26 @@ pub fn case() -> impl Strategy<Value = (Case, Vec<Vec<u16>>, Vec<usize>)> {
                         frames(camera, distribution, frame_count),
                         prop::collection::vec(1usize..=(2 * width as usize + 3), 1..8),
                     )
-                        .prop_map(move |(count, reference_slopes, frames, chunks)| {
-                            (
-                                Case {
-                                    camera,
-                                    windows: windows.clone(),
-                                    background: background.clone(),
-                                    gain: gain.clone(),
-                                    threshold,
-                                    rule,
-                                    count,
-                                    level_filter,
-                                    reference_slopes,
-                                    min_flux,
-                                },
-                                frames,
-                                chunks,
-                            )
-                        })
+                        .prop_map(
+                            move |(count, reference_slopes, frames, chunks)| {
+                                (
+                                    Case {
+                                        camera,
+                                        windows: windows.clone(),
+                                        background: background.clone(),
+                                        gain: gain.clone(),
+                                        threshold,
+                                        rule,
+                                        count,
+                                        level_filter,
+                                        reference_slopes,
+                                        min_flux,
+                                    },
+                                    frames,
+                                    chunks,
+                                )
+                            },
+                        )
                 },
             )
     })
