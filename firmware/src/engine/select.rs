@@ -3,7 +3,10 @@
 //! Each open window keeps a min-heap of its `C` brightest calibrated values so
 //! far (`C = N`, or `N + 1` for `subtract-next`) with their positions, in a
 //! slot of the engine's pool. A pixel below the heap minimum is rejected with
-//! one comparison, which is the common case once a window's heap is full.
+//! one comparison, which is the common case once a window's heap is full;
+//! the minimum is kept in the window's state, so a whole row segment whose
+//! maximum (found while calibrating it) is below it is rejected without
+//! touching the pool.
 //!
 //! Ties are exact without buffering: pixels equal to the heap minimum that do
 //! not fit in the heap go to a *tie bucket* (count and coordinate sums; their
@@ -101,6 +104,26 @@ pub struct Slot<'p> {
     pub below: &'p mut [i32],
 }
 
+impl<'p> Slot<'p> {
+    /// The slot at `base` of the pool: a heap of `capacity` entries, then
+    /// `below` entries for subtract-mean.
+    #[inline(always)]
+    pub fn at(
+        values: &'p mut [i32],
+        positions: &'p mut [u16],
+        base: usize,
+        capacity: usize,
+        below: usize,
+    ) -> Self {
+        let (heap_values, below) = values[base..][..capacity + below].split_at_mut(capacity);
+        Slot {
+            heap_values,
+            heap_positions: &mut positions[base..][..capacity],
+            below,
+        }
+    }
+}
+
 /// Selection state of one open window (the pool slot holds the heap).
 #[derive(Clone, Copy, Debug)]
 pub struct SelectionState {
@@ -109,6 +132,9 @@ pub struct SelectionState {
     len: u16,
     below_len: u16,
     tie_count: u16,
+    /// The heap minimum, kept here once the heap is full so that rejecting
+    /// a segment needs no access to the pool.
+    min: i32,
     tie_sum_i: u32,
     tie_sum_j: u32,
     below_max: i32,
@@ -122,6 +148,7 @@ impl SelectionState {
         len: 0,
         below_len: 0,
         tie_count: 0,
+        min: NOTHING,
         tie_sum_i: 0,
         tie_sum_j: 0,
         below_max: NOTHING,
@@ -140,6 +167,36 @@ impl SelectionState {
         self.capacity
     }
 
+    /// Whether the heap is full, so that [`push`](Self::push) can reject a
+    /// segment whose maximum is below the minimum without the pool.
+    #[inline(always)]
+    pub fn is_full(&self) -> bool {
+        self.len == self.capacity
+    }
+
+    /// Whether a full heap rejects every pixel of a segment whose largest
+    /// value is `max` (they are all below `v(C)` so far, or equal to it for
+    /// `subtract-next`, whose bucket is not kept).
+    #[inline(always)]
+    pub fn rejects<R: Rule>(&self, max: i32) -> bool {
+        max < self.min || (!R::KEEPS_TIES && max == self.min)
+    }
+
+    /// A segment that [`rejects`](Self::rejects) returned true for: only
+    /// what the rule remembers below `v(N)` changes.
+    #[inline(always)]
+    pub fn reject<R: Rule>(&mut self, below: &mut [i32], values: &[i32], max: i32) {
+        match R::RULE {
+            RuleKind::SubtractNextDistinct => self.below_max = self.below_max.max(max),
+            RuleKind::SubtractMean => {
+                for &p in values {
+                    self.drop_below::<R>(below, p);
+                }
+            }
+            _ => {}
+        }
+    }
+
     /// Adds the calibrated values of one row segment of the window: columns
     /// `i0 ..` of window row `j`.
     #[inline(always)]
@@ -149,48 +206,37 @@ impl SelectionState {
             return;
         }
         let capacity = self.capacity as usize;
-        let heap = &mut slot.heap_values[..capacity];
-        let positions = &mut slot.heap_positions[..capacity];
+        let heap = &mut *slot.heap_values;
+        let positions = &mut slot.heap_positions[..heap.len()];
         let mut rest = values;
         let mut i = i0;
         // Fill phase: the first C pixels of the window go straight in.
         if (self.len as usize) < capacity {
-            let take = (capacity - self.len as usize).min(rest.len());
-            for (k, &p) in rest[..take].iter().enumerate() {
-                heap[self.len as usize + k] = p;
-                positions[self.len as usize + k] = pack(i + k as u16, j);
+            let len = self.len as usize;
+            let take = (capacity - len).min(rest.len());
+            let (fill, after) = rest.split_at(take);
+            for ((h, p), (&v, k)) in heap[len..]
+                .iter_mut()
+                .zip(&mut positions[len..])
+                .zip(fill.iter().zip(0u16..))
+            {
+                *h = v;
+                *p = pack(i + k, j);
             }
             self.len += take as u16;
             i += take as u16;
-            rest = &rest[take..];
+            rest = after;
             if (self.len as usize) < capacity {
                 return;
             }
             heapify(heap, positions);
+            self.min = heap[0];
         }
-        if rest.is_empty() {
-            return;
-        }
-        let mut min = heap[0];
-        // A whole segment below the minimum (most background rows) is
-        // rejected after one branch-free pass.
-        let segment_max = rest.iter().copied().fold(NOTHING, i32::max);
-        if segment_max < min || (!R::KEEPS_TIES && segment_max == min) {
-            match R::RULE {
-                RuleKind::SubtractNextDistinct => self.below_max = self.below_max.max(segment_max),
-                RuleKind::SubtractMean => {
-                    for &p in rest {
-                        self.drop_below::<R>(slot.below, p);
-                    }
-                }
-                _ => {}
-            }
-            return;
-        }
+        let mut min = self.min;
         for &p in rest {
             if p > min {
-                let evicted = heap[0];
                 let evicted_position = positions[0];
+                let evicted = min;
                 min = replace_min(heap, positions, p, pack(i, j));
                 if R::KEEPS_TIES {
                     if min == evicted {
@@ -209,6 +255,7 @@ impl SelectionState {
             }
             i += 1;
         }
+        self.min = min;
     }
 
     #[inline(always)]

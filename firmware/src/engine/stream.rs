@@ -12,7 +12,7 @@ use super::calibrate::Calibrator;
 use super::centroid::{Centroider, SubapertureResult};
 use super::memory::{EngineMemory, MemorySize};
 use super::select::{
-    below_capacity, heap_capacity, Rule, SelectionState, Slot, SubtractMeanRule,
+    below_capacity, heap_capacity, Rule, RuleKind, SelectionState, Slot, SubtractMeanRule,
     SubtractNextDistinctRule, SubtractNextRule, ThresholdRule,
 };
 use brightpix_protocol::{
@@ -99,8 +99,12 @@ pub struct Engine<'c, 'm> {
     free_len: usize,
     /// Active windows before this one are done with the current row.
     cursor: usize,
+    /// Some window's last pixel arrived in the current row.
+    finished_in_row: bool,
     frames: u32,
     needed: MemorySize,
+    /// Calibrated values of the current segment (one window's part of a row).
+    calibrated: [i32; MAX_WINDOW_SIDE as usize],
 }
 
 impl<'c, 'm> Engine<'c, 'm> {
@@ -137,8 +141,10 @@ impl<'c, 'm> Engine<'c, 'm> {
             active_len: 0,
             free_len: 0,
             cursor: 0,
+            finished_in_row: false,
             frames: 0,
             needed: plan.needed,
+            calibrated: [0; MAX_WINDOW_SIDE as usize],
         };
         engine.start_frame();
         Ok(engine)
@@ -246,8 +252,11 @@ impl<'c, 'm> Engine<'c, 'm> {
         let end = start + part.len() as u16;
         let row = self.row;
         let row_offset = row as usize * self.config.camera.width as usize;
-        let mut calibrated = [0i32; MAX_WINDOW_SIDE as usize];
-        let level_shift = self.config.selection.level_filter.map(|f| f.gain_shift);
+        // subtract-mean's "below" heap, after the heap in a selecting slot.
+        let below_len = match self.config.selection.rule {
+            SelectionRule::SubtractMean { count } => count as usize,
+            _ => 0,
+        };
         let memory = &mut self.memory;
         let mut k = self.cursor;
         while k < self.active_len {
@@ -259,27 +268,56 @@ impl<'c, 'm> Engine<'c, 'm> {
             let to = window.end_column.min(end);
             if from < to {
                 let raw = &part[(from - start) as usize..(to - start) as usize];
-                self.calibrator
-                    .calibrate(raw, row_offset + from as usize, &mut calibrated);
-                let capacity = window.selection.capacity();
-                let mut slot = slot_at(
-                    memory.values,
-                    memory.positions,
-                    window.slot as usize * self.stride,
-                    capacity,
-                    below_capacity(self.config.selection.rule, capacity),
-                );
-                window.selection.push::<R>(
-                    &mut slot,
-                    &calibrated[..raw.len()],
-                    from - window.x,
-                    row - window.y,
-                );
+                let calibrated = &mut self.calibrated[..raw.len()];
+                let first_pixel = row_offset + from as usize;
+                let selection = &mut window.selection;
+                let capacity = selection.capacity() as usize;
+                let base = window.slot as usize * self.stride;
+                // A full heap rejects a whole segment below its minimum at once
+                // (the common case); only then is the segment's maximum needed.
+                let rejected = if capacity > 0 && selection.is_full() {
+                    let max = self.calibrator.calibrate_max(raw, first_pixel, calibrated);
+                    selection.rejects::<R>(max).then_some(max)
+                } else {
+                    self.calibrator.calibrate(raw, first_pixel, calibrated);
+                    None
+                };
+                if let Some(max) = rejected {
+                    let below = match R::RULE {
+                        RuleKind::SubtractMean => {
+                            &mut memory.values[base + capacity..][..below_len]
+                        }
+                        _ => &mut [],
+                    };
+                    selection.reject::<R>(below, calibrated, max);
+                } else {
+                    let mut slot = Slot::at(
+                        memory.values,
+                        memory.positions,
+                        base,
+                        capacity,
+                        if capacity > 0 { below_len } else { 0 },
+                    );
+                    selection.push::<R>(&mut slot, calibrated, from - window.x, row - window.y);
+                }
                 if to == window.end_column && row == window.last_row {
-                    let filter = level_shift
-                        .map(|shift| (&mut memory.level_filters[window.index as usize], shift));
+                    let capacity = window.selection.capacity() as usize;
+                    let slot = Slot::at(
+                        memory.values,
+                        memory.positions,
+                        base,
+                        capacity,
+                        if capacity > 0 { below_len } else { 0 },
+                    );
+                    let filter = self.config.selection.level_filter.map(|f| {
+                        (
+                            &mut memory.level_filters[window.index as usize],
+                            f.gain_shift,
+                        )
+                    });
                     let moments = window.selection.finish::<R>(&slot, filter);
                     window.finished = true;
+                    self.finished_in_row = true;
                     sink.subaperture(self.centroider.result(
                         window.index,
                         moments,
@@ -296,20 +334,23 @@ impl<'c, 'm> Engine<'c, 'm> {
     }
 
     fn end_row(&mut self, sink: &mut impl OutputSink) {
-        // Close finished windows, keeping the active list in column order.
-        let memory = &mut self.memory;
-        let mut kept = 0;
-        for k in 0..self.active_len {
-            let slot = memory.active[k];
-            if memory.open[slot as usize].finished {
-                memory.free[self.free_len] = slot;
-                self.free_len += 1;
-            } else {
-                memory.active[kept] = slot;
-                kept += 1;
+        if self.finished_in_row {
+            // Close finished windows, keeping the active list in column order.
+            let memory = &mut self.memory;
+            let mut kept = 0;
+            for k in 0..self.active_len {
+                let slot = memory.active[k];
+                if memory.open[slot as usize].finished {
+                    memory.free[self.free_len] = slot;
+                    self.free_len += 1;
+                } else {
+                    memory.active[kept] = slot;
+                    kept += 1;
+                }
             }
+            self.active_len = kept;
+            self.finished_in_row = false;
         }
-        self.active_len = kept;
         self.cursor = 0;
         self.column = 0;
         self.row += 1;
@@ -330,6 +371,7 @@ impl<'c, 'm> Engine<'c, 'm> {
         self.free_len = open;
         self.active_len = 0;
         self.cursor = 0;
+        self.finished_in_row = false;
         self.row = 0;
         self.column = 0;
         self.next_to_open = 0;
@@ -487,24 +529,6 @@ fn count_open_windows_slowly(windows: &[SubapertureWindow]) -> usize {
         })
         .max()
         .unwrap_or(0)
-}
-
-/// The pool slot at `base`: a heap of `capacity` entries, then `below`
-/// entries for subtract-mean.
-fn slot_at<'p>(
-    values: &'p mut [i32],
-    positions: &'p mut [u16],
-    base: usize,
-    capacity: u16,
-    below: u16,
-) -> Slot<'p> {
-    let (capacity, below) = (capacity as usize, below as usize);
-    let (heap_values, rest) = values[base..base + capacity + below].split_at_mut(capacity);
-    Slot {
-        heap_values,
-        heap_positions: &mut positions[base..base + capacity],
-        below: rest,
-    }
 }
 
 fn sift_up_rows(heap: &mut [u16]) {
