@@ -1,0 +1,447 @@
+//! The engine at the sizes the issue names, and its refusals: ELT-class
+//! 80x80 sub-apertures, 64x64-pixel windows, a 1024x1024 camera, and
+//! configurations too large for the engine's memory.
+
+use brightpix::engine_runner::{EngineBuffers, HostEngine};
+use brightpix::reference::Reference;
+use brightpix_firmware::engine::{Engine, EngineMemory, LevelFilterState, OpenWindow};
+use brightpix_protocol::{
+    Calibration, Camera, Centroid, Config, ConfigError, MemoryKind, PixelCount, RegularGrid,
+    Selection, SelectionRule, SubapertureWindow,
+};
+
+fn frame(camera: Camera, seed: u64) -> Vec<u16> {
+    let mut state = seed | 1;
+    (0..camera.pixel_count())
+        .map(|_| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state % (camera.max_raw() as u64 + 1)) as u16
+        })
+        .collect()
+}
+
+fn config<'a>(
+    camera: Camera,
+    windows: &'a [SubapertureWindow],
+    rule: SelectionRule,
+    n: u16,
+) -> Config<'a> {
+    Config {
+        camera,
+        windows,
+        calibration: Calibration::default(),
+        selection: Selection {
+            rule,
+            count: PixelCount::All(n),
+            level_filter: None,
+        },
+        centroid: Centroid::default(),
+    }
+}
+
+fn assert_engine_matches_reference(config: Config<'_>, frames: &[Vec<u16>], chunk: usize) {
+    let mut reference = Reference::new(&config).unwrap();
+    let mut engine = HostEngine::new(config).unwrap();
+    let results = engine
+        .process(frames.iter().map(Vec::as_slice), chunk)
+        .unwrap();
+    for (frame, got) in frames.iter().zip(results) {
+        let want = reference.process_frame(frame).unwrap();
+        assert_eq!(want.len(), got.len());
+        for (w, g) in want.iter().zip(&got) {
+            assert_eq!(
+                (w.index, w.slope_x, w.slope_y, w.flux, w.valid),
+                (g.index as usize, g.slope_x, g.slope_y, g.flux, g.valid)
+            );
+        }
+    }
+}
+
+#[test]
+fn elt_class_80x80_grid_on_a_960x960_camera() {
+    let camera = Camera {
+        width: 960,
+        height: 960,
+        bit_depth: 12,
+    };
+    let grid = RegularGrid {
+        x: 0,
+        y: 0,
+        columns: 80,
+        rows: 80,
+        width: 12,
+        height: 12,
+        pitch_x: 12,
+        pitch_y: 12,
+    };
+    let windows: Vec<_> = grid.windows().collect();
+    assert_eq!(windows.len(), 6400);
+    let config = config(camera, &windows, SelectionRule::SubtractNext, 20);
+    let mut buffers = EngineBuffers::for_config(&config);
+    let engine = Engine::new(config, buffers.memory()).unwrap();
+    // One grid row of windows open at a time: the memory budget of memory.rs.
+    assert_eq!(engine.memory_needed().open_windows, 80);
+    assert_eq!(engine.memory_needed().pool_entries, 80 * 21);
+    drop(engine);
+    assert_engine_matches_reference(config, &[frame(camera, 7)], 4096);
+}
+
+#[test]
+fn windows_of_64x64_on_a_1024x1024_camera_with_large_n() {
+    let camera = Camera {
+        width: 1024,
+        height: 1024,
+        bit_depth: 16,
+    };
+    let grid = RegularGrid {
+        x: 0,
+        y: 0,
+        columns: 16,
+        rows: 16,
+        width: 64,
+        height: 64,
+        pitch_x: 64,
+        pitch_y: 64,
+    };
+    let windows: Vec<_> = grid.windows().collect();
+    let frames = [frame(camera, 3)];
+    for (rule, n) in [
+        (SelectionRule::SubtractNext, 4095),
+        (SelectionRule::Threshold, 1000),
+        (SelectionRule::SubtractMean { count: 16 }, 20),
+        (SelectionRule::SubtractNextDistinct, 4096),
+    ] {
+        assert_engine_matches_reference(config(camera, &windows, rule, n), &frames, 1000);
+    }
+}
+
+#[test]
+fn overlapping_and_unordered_windows() {
+    let camera = Camera {
+        width: 64,
+        height: 40,
+        bit_depth: 10,
+    };
+    let windows = [
+        SubapertureWindow {
+            x: 30,
+            y: 5,
+            width: 20,
+            height: 30,
+        },
+        SubapertureWindow {
+            x: 0,
+            y: 0,
+            width: 64,
+            height: 40,
+        },
+        SubapertureWindow {
+            x: 10,
+            y: 5,
+            width: 30,
+            height: 10,
+        },
+        SubapertureWindow {
+            x: 63,
+            y: 39,
+            width: 1,
+            height: 1,
+        },
+        SubapertureWindow {
+            x: 10,
+            y: 5,
+            width: 30,
+            height: 10,
+        },
+    ];
+    let frames: Vec<_> = (0..3).map(|s| frame(camera, s + 11)).collect();
+    for chunk in [1, 7, 64, 65, 10_000] {
+        assert_engine_matches_reference(
+            config(camera, &windows, SelectionRule::Threshold, 9),
+            &frames,
+            chunk,
+        );
+    }
+}
+
+/// Memory that holds `open` windows and `entries` pool entries.
+fn small_memory_result(
+    config: Config<'_>,
+    subapertures: usize,
+    open: usize,
+    entries: usize,
+) -> Result<(), ConfigError> {
+    let mut order = vec![0; subapertures];
+    let mut level_filters = vec![LevelFilterState::RESET; subapertures];
+    let mut open_windows = vec![OpenWindow::CLOSED; open];
+    let mut active = vec![0; open];
+    let mut free = vec![0; open];
+    let mut values = vec![0; entries];
+    let mut positions = vec![0; entries];
+    let memory = EngineMemory {
+        order: &mut order,
+        level_filters: &mut level_filters,
+        open: &mut open_windows,
+        active: &mut active,
+        free: &mut free,
+        values: &mut values,
+        positions: &mut positions,
+    };
+    Engine::new(config, memory).map(|_| ())
+}
+
+#[test]
+fn configurations_too_large_for_the_memory_are_refused_with_the_need() {
+    let camera = Camera {
+        width: 112,
+        height: 112,
+        bit_depth: 16,
+    };
+    let grid = RegularGrid {
+        x: 0,
+        y: 0,
+        columns: 7,
+        rows: 7,
+        width: 16,
+        height: 16,
+        pitch_x: 16,
+        pitch_y: 16,
+    };
+    let windows: Vec<_> = grid.windows().collect();
+    let config = config(camera, &windows, SelectionRule::SubtractNext, 20);
+    assert_eq!(small_memory_result(config, 49, 7, 7 * 21), Ok(()));
+    assert_eq!(
+        small_memory_result(config, 48, 7, 7 * 21),
+        Err(ConfigError::MemoryBudget {
+            needed: 49,
+            available: 48,
+            what: MemoryKind::Subapertures
+        })
+    );
+    assert_eq!(
+        small_memory_result(config, 49, 6, 7 * 21),
+        Err(ConfigError::MemoryBudget {
+            needed: 7,
+            available: 6,
+            what: MemoryKind::OpenWindows
+        })
+    );
+    assert_eq!(
+        small_memory_result(config, 49, 7, 7 * 21 - 1),
+        Err(ConfigError::MemoryBudget {
+            needed: 147,
+            available: 146,
+            what: MemoryKind::SelectionEntries
+        })
+    );
+    // Validation comes first: an invalid configuration is refused as such.
+    let bad = Config {
+        camera: Camera { width: 0, ..camera },
+        ..config
+    };
+    assert_eq!(
+        small_memory_result(bad, 49, 7, 147),
+        Err(ConfigError::CameraSize {
+            width: 0,
+            height: 112
+        })
+    );
+}
+
+#[test]
+fn invalid_configurations_get_specific_errors() {
+    let camera = Camera {
+        width: 32,
+        height: 32,
+        bit_depth: 12,
+    };
+    let window = SubapertureWindow {
+        x: 0,
+        y: 0,
+        width: 16,
+        height: 16,
+    };
+    let windows = [window];
+    let good = config(camera, &windows, SelectionRule::SubtractNext, 20);
+    assert_eq!(good.validate(), Ok(()));
+    let outside = [SubapertureWindow { x: 20, ..window }];
+    let empty = [SubapertureWindow { width: 0, ..window }];
+    let huge = [SubapertureWindow {
+        width: 65,
+        height: 65,
+        ..window
+    }];
+    let short_map = vec![0i32; 10];
+    let wide_background = vec![(1 << 20) + 1; 32 * 32];
+    let per = [0u16];
+    let cases: Vec<(Config<'_>, ConfigError)> = vec![
+        (
+            config(camera, &windows, SelectionRule::SubtractNext, 0),
+            ConfigError::PixelCountZero { index: 0 },
+        ),
+        (
+            Config {
+                selection: Selection {
+                    count: PixelCount::PerSubaperture(&per),
+                    ..good.selection
+                },
+                ..good
+            },
+            ConfigError::PixelCountZero { index: 0 },
+        ),
+        (
+            Config {
+                selection: Selection {
+                    count: PixelCount::PerSubaperture(&[]),
+                    ..good.selection
+                },
+                ..good
+            },
+            ConfigError::PixelCountListLength {
+                expected: 1,
+                found: 0,
+            },
+        ),
+        (
+            Config {
+                windows: &outside,
+                ..good
+            },
+            ConfigError::WindowOutsideCamera { index: 0 },
+        ),
+        (
+            Config {
+                windows: &empty,
+                ..good
+            },
+            ConfigError::EmptyWindow { index: 0 },
+        ),
+        (
+            Config {
+                windows: &huge,
+                camera: Camera {
+                    width: 100,
+                    height: 100,
+                    ..camera
+                },
+                ..good
+            },
+            ConfigError::WindowTooLarge {
+                index: 0,
+                width: 65,
+                height: 65,
+            },
+        ),
+        (
+            Config {
+                windows: &[],
+                ..good
+            },
+            ConfigError::NoSubapertures,
+        ),
+        (
+            Config {
+                camera: Camera {
+                    bit_depth: 17,
+                    ..camera
+                },
+                ..good
+            },
+            ConfigError::BitDepth { bit_depth: 17 },
+        ),
+        (
+            Config {
+                calibration: Calibration {
+                    background: Some(&short_map),
+                    ..Calibration::default()
+                },
+                ..good
+            },
+            ConfigError::MapSize {
+                map: brightpix_protocol::MapKind::Background,
+                expected: 1024,
+                found: 10,
+            },
+        ),
+        (
+            Config {
+                calibration: Calibration {
+                    background: Some(&wide_background),
+                    ..Calibration::default()
+                },
+                ..good
+            },
+            ConfigError::BackgroundOutOfRange {
+                pixel: 0,
+                value: (1 << 20) + 1,
+            },
+        ),
+        (
+            Config {
+                calibration: Calibration {
+                    threshold: Some(1 << 26),
+                    ..Calibration::default()
+                },
+                ..good
+            },
+            ConfigError::ThresholdOutOfRange { value: 1 << 26 },
+        ),
+        (
+            Config {
+                selection: Selection {
+                    rule: SelectionRule::SubtractMean { count: 17 },
+                    ..good.selection
+                },
+                ..good
+            },
+            ConfigError::MeanCount { count: 17 },
+        ),
+        (
+            Config {
+                selection: Selection {
+                    rule: SelectionRule::Threshold,
+                    level_filter: Some(brightpix_protocol::LevelFilter { gain_shift: 3 }),
+                    ..good.selection
+                },
+                ..good
+            },
+            ConfigError::LevelFilterWithoutSubtraction,
+        ),
+        (
+            Config {
+                selection: Selection {
+                    level_filter: Some(brightpix_protocol::LevelFilter { gain_shift: 0 }),
+                    ..good.selection
+                },
+                ..good
+            },
+            ConfigError::LevelFilterGain { gain_shift: 0 },
+        ),
+        (
+            Config {
+                centroid: Centroid {
+                    min_flux: -1,
+                    ..Centroid::default()
+                },
+                ..good
+            },
+            ConfigError::NegativeMinFlux,
+        ),
+    ];
+    for (config, error) in cases {
+        assert_eq!(config.validate(), Err(error));
+        assert_eq!(
+            HostEngine::new(config).err(),
+            Some(error),
+            "the engine refuses it too"
+        );
+        assert!(
+            Reference::new(&config).is_err(),
+            "the reference refuses it too"
+        );
+        // Every refusal has a message for a person.
+        assert!(!error.to_string().is_empty());
+    }
+}
