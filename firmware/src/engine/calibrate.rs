@@ -19,45 +19,36 @@ impl<'a> Calibrator<'a> {
 
     /// Calibrates `raw` (pixels `first_pixel ..` of the frame, row-major
     /// index) into `out[..raw.len()]`, in 1/16 count.
-    #[inline]
+    ///
+    /// Not inlined: one copy of the eight loops serves all rules (inlined
+    /// into each rule's routing loop they made the engine's Cortex-M7 code
+    /// about 6 times larger), and the engine calls it once per block of a
+    /// row, not per window.
+    #[inline(never)]
     pub fn calibrate(&self, raw: &[u16], first_pixel: usize, out: &mut [i32]) {
-        self.dispatch::<false>(raw, first_pixel, out);
-    }
-
-    /// As [`calibrate`](Self::calibrate), and returns the largest calibrated
-    /// value (`i32::MIN` for an empty run): selection rejects a whole run
-    /// below its heap's minimum with one comparison.
-    #[inline]
-    pub fn calibrate_max(&self, raw: &[u16], first_pixel: usize, out: &mut [i32]) -> i32 {
-        self.dispatch::<true>(raw, first_pixel, out)
-    }
-
-    #[inline(always)]
-    fn dispatch<const MAX: bool>(&self, raw: &[u16], first_pixel: usize, out: &mut [i32]) -> i32 {
         let c = &self.calibration;
-        let (r, f, o) = (raw, first_pixel, out);
         match (c.background, c.gain, c.threshold.is_some()) {
-            (None, None, false) => pass::<false, false, false, MAX>(c, r, f, o),
-            (None, None, true) => pass::<false, false, true, MAX>(c, r, f, o),
-            (Some(_), None, false) => pass::<true, false, false, MAX>(c, r, f, o),
-            (Some(_), None, true) => pass::<true, false, true, MAX>(c, r, f, o),
-            (None, Some(_), false) => pass::<false, true, false, MAX>(c, r, f, o),
-            (None, Some(_), true) => pass::<false, true, true, MAX>(c, r, f, o),
-            (Some(_), Some(_), false) => pass::<true, true, false, MAX>(c, r, f, o),
-            (Some(_), Some(_), true) => pass::<true, true, true, MAX>(c, r, f, o),
+            (None, None, false) => pass::<false, false, false>(c, raw, first_pixel, out),
+            (None, None, true) => pass::<false, false, true>(c, raw, first_pixel, out),
+            (Some(_), None, false) => pass::<true, false, false>(c, raw, first_pixel, out),
+            (Some(_), None, true) => pass::<true, false, true>(c, raw, first_pixel, out),
+            (None, Some(_), false) => pass::<false, true, false>(c, raw, first_pixel, out),
+            (None, Some(_), true) => pass::<false, true, true>(c, raw, first_pixel, out),
+            (Some(_), Some(_), false) => pass::<true, true, false>(c, raw, first_pixel, out),
+            (Some(_), Some(_), true) => pass::<true, true, true>(c, raw, first_pixel, out),
         }
     }
 }
 
 /// One pass doing the steps selected by the flags (which must match the
-/// maps present in `c`); with `MAX`, returns the largest value.
+/// maps present in `c`).
 #[inline(always)]
-fn pass<const BACKGROUND: bool, const GAIN: bool, const THRESHOLD: bool, const MAX: bool>(
+fn pass<const BACKGROUND: bool, const GAIN: bool, const THRESHOLD: bool>(
     c: &Calibration<'_>,
     raw: &[u16],
     first_pixel: usize,
     out: &mut [i32],
-) -> i32 {
+) {
     let n = raw.len();
     let out = &mut out[..n];
     // Map slices of exactly `n` entries (one bounds check each, per run).
@@ -70,7 +61,6 @@ fn pass<const BACKGROUND: bool, const GAIN: bool, const THRESHOLD: bool, const M
         _ => &[],
     };
     let threshold = c.threshold.unwrap_or(i32::MIN);
-    let mut max = i32::MIN;
     for k in 0..n {
         // 1. d = 16 r - B   (-2^20 <= d < 2^21)
         let mut d = (raw[k] as i32) << 4;
@@ -86,9 +76,5 @@ fn pass<const BACKGROUND: bool, const GAIN: bool, const THRESHOLD: bool, const M
             d = 0;
         }
         out[k] = d;
-        if MAX {
-            max = max.max(d);
-        }
     }
-    max
 }

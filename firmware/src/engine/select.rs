@@ -4,9 +4,8 @@
 //! far (`C = N`, or `N + 1` for `subtract-next`) with their positions, in a
 //! slot of the engine's pool. A pixel below the heap minimum is rejected with
 //! one comparison, which is the common case once a window's heap is full;
-//! the minimum is kept in the window's state, so a whole row segment whose
-//! maximum (found while calibrating it) is below it is rejected without
-//! touching the pool.
+//! the minimum is kept in the window's state, so a whole row segment below
+//! it is rejected by one branch-free pass, without touching the pool.
 //!
 //! Ties are exact without buffering: pixels equal to the heap minimum that do
 //! not fit in the heap go to a *tie bucket* (count and coordinate sums; their
@@ -174,16 +173,30 @@ impl SelectionState {
         self.len == self.capacity
     }
 
-    /// Whether a full heap rejects every pixel of a segment whose largest
-    /// value is `max` (they are all below `v(C)` so far, or equal to it for
-    /// `subtract-next`, whose bucket is not kept).
+    /// Whether a full heap rejects every pixel of a segment: all are below
+    /// `v(C)` so far (or equal to it for `subtract-next`, whose bucket is
+    /// not kept). If so, returns what [`reject`](Self::reject) needs: the
+    /// segment's maximum for `subtract-next-distinct`.
     #[inline(always)]
-    pub fn rejects<R: Rule>(&self, max: i32) -> bool {
-        max < self.min || (!R::KEEPS_TIES && max == self.min)
+    pub fn rejects<R: Rule>(&self, values: &[i32]) -> Option<i32> {
+        if R::RULE == RuleKind::SubtractNextDistinct {
+            let max = values.iter().copied().fold(NOTHING, i32::max);
+            return (max < self.min).then_some(max);
+        }
+        // A pixel is accepted iff p > t. |t|, |p| <= 2^25, so t - p cannot
+        // overflow, and its sign bit is set exactly for accepted pixels: one
+        // subtraction and one OR per pixel, no branch.
+        let t = if R::KEEPS_TIES {
+            self.min - 1
+        } else {
+            self.min
+        };
+        let accepted = values.iter().fold(0, |any, &p| any | (t - p));
+        (accepted >= 0).then_some(NOTHING)
     }
 
-    /// A segment that [`rejects`](Self::rejects) returned true for: only
-    /// what the rule remembers below `v(N)` changes.
+    /// A segment that [`rejects`](Self::rejects) returned `Some(max)` for:
+    /// only what the rule remembers below `v(N)` changes.
     #[inline(always)]
     pub fn reject<R: Rule>(&mut self, below: &mut [i32], values: &[i32], max: i32) {
         match R::RULE {

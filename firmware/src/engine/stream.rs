@@ -19,6 +19,10 @@ use brightpix_protocol::{
     Config, ConfigError, MemoryKind, SelectionRule, SubapertureWindow, MAX_WINDOW_SIDE,
 };
 
+/// Pixels calibrated at once: at least a window's width, so that a block
+/// started at a segment holds all of it.
+const CALIBRATION_BLOCK: usize = 2 * MAX_WINDOW_SIDE as usize;
+
 /// Where results go.
 pub trait OutputSink {
     /// A sub-aperture's last pixel has arrived.
@@ -103,8 +107,8 @@ pub struct Engine<'c, 'm> {
     finished_in_row: bool,
     frames: u32,
     needed: MemorySize,
-    /// Calibrated values of the current segment (one window's part of a row).
-    calibrated: [i32; MAX_WINDOW_SIDE as usize],
+    /// Calibrated values of a block of the current row part.
+    calibrated: [i32; CALIBRATION_BLOCK],
 }
 
 impl<'c, 'm> Engine<'c, 'm> {
@@ -144,7 +148,7 @@ impl<'c, 'm> Engine<'c, 'm> {
             finished_in_row: false,
             frames: 0,
             needed: plan.needed,
-            calibrated: [0; MAX_WINDOW_SIDE as usize],
+            calibrated: [0; CALIBRATION_BLOCK],
         };
         engine.start_frame();
         Ok(engine)
@@ -258,28 +262,51 @@ impl<'c, 'm> Engine<'c, 'm> {
             _ => 0,
         };
         let memory = &mut self.memory;
+        // Columns whose calibrated values are in `self.calibrated`.
+        let mut block = (start, start);
         let mut k = self.cursor;
         while k < self.active_len {
-            let window = &mut memory.open[memory.active[k] as usize];
-            if window.x >= end {
+            let slot = memory.active[k] as usize;
+            let (x, end_column) = (memory.open[slot].x, memory.open[slot].end_column);
+            if x >= end {
                 break;
             }
-            let from = window.x.max(start);
-            let to = window.end_column.min(end);
+            let from = x.max(start);
+            let to = end_column.min(end);
             if from < to {
-                let raw = &part[(from - start) as usize..(to - start) as usize];
-                let calibrated = &mut self.calibrated[..raw.len()];
-                let first_pixel = row_offset + from as usize;
+                // Calibrate a block of the row part from this segment on, unless
+                // an earlier segment's block covers it already (the active list
+                // is sorted by first column, so `from` never decreases). The
+                // block goes beyond the segment only if the next window starts
+                // within it, so pixels between windows are not calibrated.
+                if to > block.1 {
+                    let next_x = match memory.active[..self.active_len].get(k + 1) {
+                        Some(&next) => memory.open[next as usize].x,
+                        None => u16::MAX,
+                    };
+                    let block_end = if next_x <= to {
+                        end.min(from + CALIBRATION_BLOCK as u16)
+                    } else {
+                        to
+                    };
+                    self.calibrator.calibrate(
+                        &part[(from - start) as usize..(block_end - start) as usize],
+                        row_offset + from as usize,
+                        &mut self.calibrated,
+                    );
+                    block = (from, block_end);
+                }
+                let calibrated =
+                    &self.calibrated[(from - block.0) as usize..(to - block.0) as usize];
+                let window = &mut memory.open[slot];
                 let selection = &mut window.selection;
                 let capacity = selection.capacity() as usize;
                 let base = window.slot as usize * self.stride;
                 // A full heap rejects a whole segment below its minimum at once
                 // (the common case); only then is the segment's maximum needed.
                 let rejected = if capacity > 0 && selection.is_full() {
-                    let max = self.calibrator.calibrate_max(raw, first_pixel, calibrated);
-                    selection.rejects::<R>(max).then_some(max)
+                    selection.rejects::<R>(calibrated)
                 } else {
-                    self.calibrator.calibrate(raw, first_pixel, calibrated);
                     None
                 };
                 if let Some(max) = rejected {
@@ -326,7 +353,7 @@ impl<'c, 'm> Engine<'c, 'm> {
                     ));
                 }
             }
-            if k == self.cursor && window.end_column <= end {
+            if k == self.cursor && end_column <= end {
                 self.cursor += 1;
             }
             k += 1;
