@@ -3,5 +3,8 @@ pub mod cli;
 pub mod config_file;
 pub mod engine_runner;
 pub mod io;
+pub mod link;
 pub mod reference;
+pub mod sil;
+pub mod sim_device;
 pub mod simulator;
