@@ -385,9 +385,19 @@ impl<'c, 'm> Engine<'c, 'm> {
             self.frames = self.frames.wrapping_add(1);
             sink.frame_complete(self.frames);
             self.start_frame();
-        } else {
+        } else if self.opens_windows_in_row() {
             self.open_windows_of_row();
         }
+    }
+
+    /// Whether some window's first row is the current row (most rows open
+    /// none: a cheap test before the loop, whose set-up is not).
+    #[inline(always)]
+    fn opens_windows_in_row(&self) -> bool {
+        let windows = self.config.windows;
+        self.memory.order[..windows.len()]
+            .get(self.next_to_open)
+            .is_some_and(|&index| windows[index as usize].y == self.row)
     }
 
     fn start_frame(&mut self) {
