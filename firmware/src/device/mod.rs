@@ -147,6 +147,10 @@ enum Next {
 
 type LinkResult<T, E> = Result<T, LinkError<E>>;
 
+/// The device logs its counters after the first frame and then every this
+/// many frames (a board's only view of them without asking over the link).
+const STATUS_LOG_FRAMES: u64 = 1000;
+
 impl<'d, T: Read + Write, C: PixelSource> Device<'d, T, C> {
     /// A device with no configuration. `board` (at most
     /// [`MAX_BOARD_NAME_LEN`] bytes; longer is cut) is reported in
@@ -762,6 +766,7 @@ impl<T: Read + Write> Core<'_, T> {
             if done {
                 let sent = self.frame.take().map_or(0, |p| p.sent);
                 self.counters.frames_processed += 1;
+                self.log_progress();
                 self.send(&DeviceMessage::FrameDone { frame, count: sent })
                     .await?;
                 if let Some(capture) = &mut self.capture {
@@ -773,6 +778,23 @@ impl<T: Read + Write> Core<'_, T> {
             }
         }
         Ok(())
+    }
+
+    /// Logs the counters after the first frame and every
+    /// [`STATUS_LOG_FRAMES`].
+    fn log_progress(&self) {
+        let c = &self.counters;
+        if c.frames_processed == 1 || c.frames_processed.is_multiple_of(STATUS_LOG_FRAMES) {
+            log_info!(
+                "device: {=u64} frames processed, {=u64} dropped; {=u32} CRC errors, {=u32} decode errors, {=u32} overruns, {=u32} pixel errors",
+                c.frames_processed,
+                c.frames_dropped,
+                c.crc_errors,
+                c.decode_errors,
+                c.overruns,
+                c.pixel_errors
+            );
+        }
     }
 
     /// Sends the queued results of `frame`: whole messages, or all if `all`.

@@ -1,13 +1,18 @@
 #!/usr/bin/env python3
-"""Board checks of the brightpix QEMU firmware (echo build): run it under QEMU and check
+"""Board checks of the brightpix QEMU firmware, in its echo self-test mode
+(`selftest=echo` on the semihosting command line): run it under QEMU and check
 
 1. UART0 echo: random bytes come back unchanged (bulk and single-byte round trips);
    byte 0x04 ends the emulation with exit code 0;
 2. defmt over semihosting decodes (defmt-print) and has the expected lines,
-   including the semihosting file-read smoke check (length + FNV-1a of a host file);
+   including the semihosting file-read smoke check (`--digest PATH`: length + FNV-1a of a
+   host file);
 3. the device clock (SysTick, 25 MHz) roughly matches wall time (QEMU without -icount);
 4. the idle executor sleeps (WFI): little host CPU while waiting for input;
 5. panic and HardFault (UDF) end QEMU with exit codes 101 and 102.
+
+The device itself (protocol, pixel FIFO, slopes against the host) is checked by
+check_device.py.
 
 Usage: check_qemu.py [ELF]   (default: firmware/target/thumbv7em-none-eabihf/release/brightpix-qemu)
 Needs qemu-system-arm and defmt-print (cargo install defmt-print) on PATH.
@@ -114,7 +119,7 @@ def pty_backpressure(elf, tmp, payload, delay):
     cmd = [
         "qemu-system-arm", "-cpu", "cortex-m4", "-machine", "mps2-an386",
         "-display", "none", "-monitor", "none", "-serial", "pty",
-        "-semihosting-config", "enable=on,target=native",
+        "-semihosting-config", "enable=on,target=native,arg=brightpix-qemu,arg=selftest=echo",
         "-kernel", elf,
     ]
     proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.PIPE)
@@ -187,7 +192,7 @@ def main():
         blob_path = os.path.join(tmp, "smoke.bin")
         with open(blob_path, "wb") as f:
             f.write(blob)
-        q = Qemu(elf, tmp, [blob_path])
+        q = Qemu(elf, tmp, ["selftest=echo", "--digest", blob_path])
 
         # Wait for the echo loop to be up: one byte round trip.
         q.sock.sendall(b"A")
@@ -238,7 +243,7 @@ def main():
         for l in lines:
             print("       " + l)
         text = "\n".join(lines)
-        check("hello from mps2-an386" in text, "defmt hello decoded")
+        check("brightpix-qemu: qemu-mps2-an386" in text, "defmt hello decoded")
         m = re.search(r"timer: 10 ms took (\d+) us", text)
         check(m is not None and 10_000 <= int(m.group(1)) <= 20_000,
           "Timer::after_millis(10) took [10, 20] ms (QEMU without -icount follows host time)")

@@ -1,7 +1,8 @@
 //! Reading host files through semihosting (SYS_OPEN / SYS_READ / SYS_FLEN).
 //!
-//! Much faster than the UART under QEMU, and works on a FIFO too (the read blocks
-//! the whole emulated CPU until the host writes, so keep that in mind for timing).
+//! Much faster than the UART under QEMU, and works on a FIFO too (a read blocks
+//! the whole emulated CPU while the FIFO is empty and open for writing; see
+//! `pixels.rs`).
 //! Paths are relative to QEMU's working directory.
 
 use core::ffi::CStr;
@@ -44,13 +45,12 @@ impl HostFile {
     }
 
     /// Fill `buf` completely, or fail (`UnexpectedEof` if the file ends first).
-    #[allow(dead_code)] // API for the device loop (pixel streaming)
     pub fn read_exact(&mut self, buf: &mut [u8]) -> io::Result<()> {
         self.file.read_exact(buf)
     }
 
     /// File length in bytes (SYS_FLEN; not meaningful for a FIFO).
-    pub fn len(&self) -> io::Result<u64> {
+    pub fn size(&self) -> io::Result<u64> {
         Ok(self.file.metadata()?.len())
     }
 }
@@ -60,7 +60,7 @@ impl HostFile {
 /// Also returns the length SYS_FLEN reports, for comparison.
 pub fn digest(path: &str, chunk: &mut [u8]) -> io::Result<(u64, u64, u32)> {
     let mut file = HostFile::open_str(path)?;
-    let flen = file.len()?;
+    let flen = file.size()?;
     let mut total = 0u64;
     let mut hash = 0x811c_9dc5u32;
     loop {

@@ -1,83 +1,111 @@
-//! brightpix on QEMU mps2-an386 (Cortex-M4F).
+//! brightpix on QEMU mps2-an386 (Cortex-M4F): the device.
 //!
-//! Board bring-up: defmt over semihosting, embassy executor (WFI loop) and time
-//! driver (SysTick), async UART0. For now `main` runs an echo loop on UART0
-//! (byte 0x04 ends the emulation with exit code 0); the device loop replaces it.
-//!
-//! Semihosting command line (`-semihosting-config enable=on,target=native,arg=brightpix-qemu,arg=X`),
-//! for tests of the board itself:
-//! - `X` = a host path: read that file first and log its length and FNV-1a hash
-//!   (smoke check of `hostfs`);
-//! - `X` = `selftest=panic` / `selftest=udf`: panic / execute an undefined
-//!   instruction, to check that both end QEMU with exit code 101 / 102.
+//! The board-independent device loop (`brightpix_firmware::device`) with
+//! UART0 as the host link, speaking the brightpix protocol
+//! (`shared/PROTOCOL.md`). Pixels arrive as `PixelRows` messages on UART0,
+//! or, with `--pixels PATH` on the semihosting command line, also as
+//! `PixelRows` frames in the host file or FIFO `PATH` (see `pixels.rs` for
+//! how the semihosting reads share the CPU with the UART). defmt goes to
+//! semihosting (QEMU's stdout). The contract with the host is in
+//! firmware/README.md, "Running the QEMU device"; the command line in
+//! `args.rs`.
 #![no_std]
 #![no_main]
 
-mod hostfs;
-mod interrupts;
-mod time_driver;
-mod uart;
-
-use core::sync::atomic::{AtomicBool, Ordering};
-
 use brightpix_board_common::executor;
-use cortex_m_rt::{entry, exception, ExceptionFrame};
-use defmt_semihosting as _;
+use brightpix_board_qemu::args::{Options, Selftest};
+use brightpix_board_qemu::hostfs::{self, HostFile};
+use brightpix_board_qemu::pixels::{BoardSource, HostPixels};
+use brightpix_board_qemu::uart::{self, Uart0};
+use brightpix_board_qemu::{exit, exit_code, storage, time_driver, BOARD_NAME};
+use brightpix_firmware::device::{Device, LinkOnly, PixelRowsStream};
+use cortex_m_rt::entry;
 use embassy_executor::Spawner;
 use embassy_time::{Instant, Timer};
 use embedded_io_async::{Read, Write};
 
-use crate::uart::Uart0;
+/// The device task's type.
+type BoardDevice = Device<'static, Uart0, BoardSource>;
 
-/// Exit codes seen by whoever runs QEMU.
-pub mod exit_code {
-    pub const OK: i32 = 0;
-    pub const PANIC: i32 = 101;
-    pub const HARD_FAULT: i32 = 102;
-}
-
-/// End of transmission: the echo loop exits QEMU when it receives it.
+/// End of transmission: the echo self-test exits QEMU when it receives it.
 const EOT: u8 = 0x04;
-
-defmt::timestamp!("{=u64:us}", Instant::now().as_micros());
 
 #[entry]
 fn main() -> ! {
     let cp = cortex_m::Peripherals::take().unwrap();
     time_driver::init(cp.SYST);
-    defmt::info!("brightpix-qemu: hello from mps2-an386");
-    executor::run(|spawner: Spawner| {
-        spawner.spawn(startup(spawner).unwrap());
-    })
-}
+    defmt::info!("brightpix-qemu: {=str}", BOARD_NAME);
+    let options = Options::from_semihosting();
+    if let Some(path) = &options.digest {
+        digest(path);
+    }
+    match options.selftest {
+        Some(Selftest::Panic) => panic!("selftest"),
+        Some(Selftest::Udf) => cortex_m::asm::udf(),
+        Some(Selftest::Echo) => {
+            let uart = Uart0::new().unwrap();
+            executor::run(|spawner: Spawner| spawner.spawn(echo(uart).unwrap()))
+        }
+        None => {}
+    }
 
-#[embassy_executor::task]
-async fn startup(spawner: Spawner) {
-    let t0 = Instant::now();
-    Timer::after_millis(10).await;
-    defmt::info!("timer: 10 ms took {=u64} us", t0.elapsed().as_micros());
-
-    command_line_checks();
-
-    let uart = Uart0::new().unwrap();
-    spawner.spawn(echo(uart).unwrap());
-}
-
-/// Board self-tests selected by the semihosting command line (see the crate docs).
-fn command_line_checks() {
-    let Ok(args) = semihosting::experimental::env::args::<256>() else {
-        return;
+    let source = match &options.pixels {
+        None => BoardSource::Link(LinkOnly),
+        Some(path) => {
+            // For a FIFO, the open returns once the host has opened it for writing.
+            defmt::info!("pixels: opening {=str}", path.as_str());
+            match HostFile::open_str(path) {
+                Ok(file) => {
+                    defmt::info!(
+                        "pixels: reading PixelRows frames from {=str}",
+                        path.as_str()
+                    );
+                    let (frames, pixels) = storage::stream_buffers();
+                    BoardSource::Stream(PixelRowsStream::new(HostPixels::new(file), frames, pixels))
+                }
+                Err(e) => {
+                    defmt::error!(
+                        "pixels: cannot open {=str} ({}): pixels on UART0 only",
+                        path.as_str(),
+                        defmt::Debug2Format(&e)
+                    );
+                    BoardSource::Link(LinkOnly)
+                }
+            }
+        }
     };
-    match (&args).nth(1) {
-        Some(Ok("selftest=panic")) => panic!("selftest"),
-        Some(Ok("selftest=udf")) => cortex_m::asm::udf(),
-        Some(Ok(path)) => smoke_check_hostfs(path),
-        _ => defmt::info!("hostfs: no path argument, smoke check skipped"),
+    let uart = Uart0::new().unwrap();
+    let device = Device::new(uart, source, storage::device_buffers(), BOARD_NAME);
+    let c = device.capabilities();
+    defmt::info!(
+        "device: {=u32} sub-apertures, maps of {=u32} pixels, {=u32} open windows, {=u32} pool entries, {=u32} results per row; buffers {=usize} bytes; pixel source {}",
+        c.max_subapertures,
+        c.max_camera_pixels,
+        c.max_open_windows,
+        c.pool_entries,
+        c.max_results_per_row,
+        storage::TOTAL_BYTES,
+        defmt::Debug2Format(&c.pixel_source)
+    );
+    executor::run(|spawner: Spawner| spawner.spawn(serve(device).unwrap()))
+}
+
+/// Runs the device for ever. UART0 cannot fail or close, so `run` returns
+/// only if that changes; the device keeps its state across calls.
+#[embassy_executor::task]
+async fn serve(mut device: BoardDevice) {
+    defmt::info!("device: serving UART0");
+    loop {
+        let e = device.run().await;
+        defmt::warn!(
+            "device: link ended ({}), serving again",
+            defmt::Debug2Format(&e)
+        );
     }
 }
 
-/// Read a host file through semihosting and log its length and hash.
-fn smoke_check_hostfs(path: &str) {
+/// Board check: read a host file through semihosting, log length and hash.
+fn digest(path: &str) {
     let mut chunk = [0u8; 512];
     match hostfs::digest(path, &mut chunk) {
         Ok((flen, len, hash)) => defmt::info!(
@@ -91,9 +119,13 @@ fn smoke_check_hostfs(path: &str) {
     }
 }
 
-/// Echo every byte received on UART0; exit QEMU (code 0) on EOT (0x04).
+/// Board check (`selftest=echo`): time a 10 ms timer, then echo every byte
+/// received on UART0; exit QEMU (code 0) on EOT (0x04).
 #[embassy_executor::task]
 async fn echo(mut uart: Uart0) {
+    let t0 = Instant::now();
+    Timer::after_millis(10).await;
+    defmt::info!("timer: 10 ms took {=u64} us", t0.elapsed().as_micros());
     defmt::info!("uart0: echo loop ready (send 0x04 to exit)");
     let mut buf = [0u8; 64];
     let mut total = 0usize;
@@ -116,38 +148,4 @@ async fn echo(mut uart: Uart0) {
             exit(exit_code::OK);
         }
     }
-}
-
-/// End the emulation with `code` (semihosting SYS_EXIT_EXTENDED).
-pub fn exit(code: i32) -> ! {
-    semihosting::process::exit(code)
-}
-
-/// Set on the first panic or fault, so a fault while reporting does not recurse.
-static FAILING: AtomicBool = AtomicBool::new(false);
-
-#[panic_handler]
-fn panic(info: &core::panic::PanicInfo) -> ! {
-    if !FAILING.swap(true, Ordering::Relaxed) {
-        defmt::error!("panic: {}", defmt::Display2Format(info));
-    }
-    exit(exit_code::PANIC)
-}
-
-#[exception]
-unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
-    if !FAILING.swap(true, Ordering::Relaxed) {
-        defmt::error!(
-            "HardFault: pc={=u32:#010x} lr={=u32:#010x}",
-            frame.pc(),
-            frame.lr()
-        );
-    }
-    exit(exit_code::HARD_FAULT)
-}
-
-/// Any interrupt without a handler (see interrupts.rs) is a bug.
-#[exception]
-unsafe fn DefaultHandler(irqn: i16) {
-    panic!("unexpected interrupt/exception {}", irqn);
 }

@@ -142,7 +142,6 @@ impl Uart0 {
     }
 
     /// Split into halves that can be used from different tasks.
-    #[allow(dead_code)] // API for the device loop
     pub fn split(self) -> (Uart0Rx, Uart0Tx) {
         (self.rx, self.tx)
     }

@@ -1,0 +1,72 @@
+//! The semihosting command line, given to QEMU as
+//! `-semihosting-config enable=on,target=native,arg=brightpix-qemu,arg=...`
+//! (the first `arg` is the program name). QEMU joins the arguments with
+//! spaces, so a path must not contain blanks.
+//!
+//! | argument | effect |
+//! |---|---|
+//! | `--pixels PATH` | pixels also come from `PATH` (a FIFO or file the host writes, `PixelRows` frames) |
+//! | `--digest PATH` | board check: read `PATH` and log its length and FNV-1a hash |
+//! | `selftest=echo` | board check: UART0 echo loop instead of the device (0x04 exits) |
+//! | `selftest=panic`, `selftest=udf` | board check: the panic / HardFault exits (101 / 102) |
+
+use heapless::String;
+
+/// Longest path accepted (bytes).
+pub const MAX_PATH: usize = crate::hostfs::MAX_PATH;
+/// Room for the whole command line.
+const CMDLINE_BYTES: usize = 1024;
+
+/// What the command line asks for.
+#[derive(Default)]
+pub struct Options {
+    pub pixels: Option<String<MAX_PATH>>,
+    pub digest: Option<String<MAX_PATH>>,
+    pub selftest: Option<Selftest>,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, defmt::Format)]
+pub enum Selftest {
+    Echo,
+    Panic,
+    Udf,
+}
+
+impl Options {
+    /// Reads and parses the semihosting command line. Unknown or malformed
+    /// arguments are logged and ignored; no command line means defaults.
+    pub fn from_semihosting() -> Self {
+        let mut options = Options::default();
+        let Ok(args) = semihosting::experimental::env::args::<CMDLINE_BYTES>() else {
+            return options;
+        };
+        let mut args = (&args).skip(1);
+        while let Some(arg) = args.next() {
+            let Ok(arg) = arg else {
+                defmt::warn!("args: an argument is not UTF-8, ignored");
+                continue;
+            };
+            match arg {
+                "--pixels" | "--digest" => {
+                    let path = match args.next() {
+                        Some(Ok(p)) => String::try_from(p).ok(),
+                        _ => None,
+                    };
+                    if path.is_none() {
+                        defmt::warn!("args: {=str} needs a path (UTF-8, at most 255 bytes)", arg);
+                    }
+                    if arg == "--pixels" {
+                        options.pixels = path;
+                    } else {
+                        options.digest = path;
+                    }
+                }
+                "selftest=echo" => options.selftest = Some(Selftest::Echo),
+                "selftest=panic" => options.selftest = Some(Selftest::Panic),
+                "selftest=udf" => options.selftest = Some(Selftest::Udf),
+                other => defmt::warn!("args: unknown argument {=str}, ignored", other),
+            }
+        }
+        options
+    }
+}

@@ -1,0 +1,114 @@
+//! The device's buffers, sized for the 4 MiB of RAM of the mps2 boards.
+//!
+//! | what | limit | why |
+//! |---|---|---|
+//! | sub-apertures per configuration | [`MAX_SUBAPERTURES`] = 6400 | an 80x80 ELT-class grid (without maps); 1024 is plenty for 8 m-class |
+//! | camera pixels of background/gain maps | [`MAX_MAP_PIXELS`] = 65536 | maps for cameras up to 256x256 (no limit on the camera without maps) |
+//! | open windows (crossing one camera row) | [`MAX_OPEN_WINDOWS`] = 256 | a grid row of 256 windows, or several rows of overlapping ones |
+//! | selection pool entries | [`POOL_ENTRIES`] = 256 x 271 | every open window of 16x16 with any N and rule: the largest stride is subtract-mean N = 255, M = 16 (255 + 16); subtract-next N = 255 needs 256; N >= 256 selects nothing (0). Fewer open windows leave room for larger windows. |
+//! | results finished by one camera row | [`MAX_RESULTS_PER_ROW`] = 1024 | |
+//!
+//! Bytes (`TOTAL_BYTES`, logged at boot): two configuration slots of
+//! 18 B per sub-aperture + 6 B per map pixel (1.0 MB), the engine's 18 B
+//! per sub-aperture and 6 B per pool entry (0.5 MB), vetting scratch,
+//! result queue, link buffers and the pixel stream's buffers: about 1.6 MB
+//! in all, leaving over 2 MB of RAM for the stack and the rest.
+//!
+//! Every buffer is its own `static` whose initial value is all zero bytes
+//! (so it lands in `.bss`, zeroed at boot), except the open windows'
+//! state (a few KiB in `.data`). One `DeviceStorage` static would work
+//! too, but its non-zero parts would put all 1.6 MB in `.data`: in the
+//! flash image and copied at every boot.
+
+use brightpix_firmware::device::{DeviceBuffers, SlotStorage};
+use brightpix_firmware::engine::{EngineMemory, LevelFilterState, OpenWindow, SubapertureResult};
+use brightpix_protocol::wire::{MAX_FRAME_LEN, MAX_PIXEL_BYTES};
+use static_cell::ConstStaticCell;
+
+pub const MAX_SUBAPERTURES: usize = 6400;
+pub const MAX_MAP_PIXELS: usize = 256 * 256;
+pub const MAX_OPEN_WINDOWS: usize = 256;
+/// Pool entries per open window that any N and rule needs on 16x16
+/// windows: subtract-mean with N = 255 and M = 16.
+pub const POOL_STRIDE_16X16: usize = 255 + 16;
+pub const POOL_ENTRIES: usize = MAX_OPEN_WINDOWS * POOL_STRIDE_16X16;
+pub const MAX_RESULTS_PER_ROW: usize = 1024;
+/// The pixel stream (`--pixels`) reads its file into this buffer: the most
+/// one semihosting read asks for.
+pub const STREAM_BUFFER_BYTES: usize = 4096;
+/// Pixels of one `PixelRows` message.
+pub const PIXEL_BATCH: usize = MAX_PIXEL_BYTES / 2;
+
+const S: usize = MAX_SUBAPERTURES;
+const P: usize = MAX_MAP_PIXELS;
+const OPEN: usize = MAX_OPEN_WINDOWS;
+const ENTRIES: usize = POOL_ENTRIES;
+const Q: usize = MAX_RESULTS_PER_ROW;
+
+const NO_RESULT: SubapertureResult = SubapertureResult {
+    index: 0,
+    slope_x: 0,
+    slope_y: 0,
+    flux: 0,
+    valid: false,
+};
+
+static SLOT_A: ConstStaticCell<SlotStorage<S, P>> = ConstStaticCell::new(SlotStorage::new());
+static SLOT_B: ConstStaticCell<SlotStorage<S, P>> = ConstStaticCell::new(SlotStorage::new());
+static ENGINE_ORDER: ConstStaticCell<[u16; S]> = ConstStaticCell::new([0; S]);
+static LEVEL_FILTERS: ConstStaticCell<[LevelFilterState; S]> =
+    ConstStaticCell::new([LevelFilterState::RESET; S]);
+static OPEN_WINDOWS: ConstStaticCell<[OpenWindow; OPEN]> =
+    ConstStaticCell::new([OpenWindow::CLOSED; OPEN]);
+static ACTIVE: ConstStaticCell<[u16; OPEN]> = ConstStaticCell::new([0; OPEN]);
+static FREE: ConstStaticCell<[u16; OPEN]> = ConstStaticCell::new([0; OPEN]);
+static POOL_VALUES: ConstStaticCell<[i32; ENTRIES]> = ConstStaticCell::new([0; ENTRIES]);
+static POOL_POSITIONS: ConstStaticCell<[u16; ENTRIES]> = ConstStaticCell::new([0; ENTRIES]);
+static VET_ORDER: ConstStaticCell<[u16; S]> = ConstStaticCell::new([0; S]);
+static VET_SCRATCH: ConstStaticCell<[u16; S]> = ConstStaticCell::new([0; S]);
+static RESULTS: ConstStaticCell<[SubapertureResult; Q]> = ConstStaticCell::new([NO_RESULT; Q]);
+static RX: ConstStaticCell<[u8; MAX_FRAME_LEN]> = ConstStaticCell::new([0; MAX_FRAME_LEN]);
+static TX: ConstStaticCell<[u8; MAX_FRAME_LEN]> = ConstStaticCell::new([0; MAX_FRAME_LEN]);
+static PIXELS: ConstStaticCell<[u16; PIXEL_BATCH]> = ConstStaticCell::new([0; PIXEL_BATCH]);
+static STREAM_FRAMES: ConstStaticCell<[u8; STREAM_BUFFER_BYTES]> =
+    ConstStaticCell::new([0; STREAM_BUFFER_BYTES]);
+static STREAM_PIXELS: ConstStaticCell<[u16; PIXEL_BATCH]> = ConstStaticCell::new([0; PIXEL_BATCH]);
+
+/// Bytes of all the buffers above.
+pub const TOTAL_BYTES: usize = 2 * core::mem::size_of::<SlotStorage<S, P>>()
+    + S * (2 + core::mem::size_of::<LevelFilterState>())
+    + OPEN * (core::mem::size_of::<OpenWindow>() + 4)
+    + ENTRIES * 6
+    + 2 * S * 2
+    + Q * core::mem::size_of::<SubapertureResult>()
+    + 2 * MAX_FRAME_LEN
+    + 2 * PIXEL_BATCH * 2
+    + STREAM_BUFFER_BYTES;
+
+/// The device's buffers. Panics if called twice.
+pub fn device_buffers() -> DeviceBuffers<'static> {
+    DeviceBuffers {
+        slots: [SLOT_A.take().borrow(), SLOT_B.take().borrow()],
+        engine: EngineMemory {
+            order: ENGINE_ORDER.take(),
+            level_filters: LEVEL_FILTERS.take(),
+            open: OPEN_WINDOWS.take(),
+            active: ACTIVE.take(),
+            free: FREE.take(),
+            values: POOL_VALUES.take(),
+            positions: POOL_POSITIONS.take(),
+        },
+        order: VET_ORDER.take(),
+        scratch: VET_SCRATCH.take(),
+        results: RESULTS.take(),
+        rx: RX.take(),
+        tx: TX.take(),
+        pixels: PIXELS.take(),
+    }
+}
+
+/// The pixel stream's buffers: frames read from the file, pixels of one
+/// message. Panics if called twice.
+pub fn stream_buffers() -> (&'static mut [u8], &'static mut [u16]) {
+    (STREAM_FRAMES.take(), STREAM_PIXELS.take())
+}
