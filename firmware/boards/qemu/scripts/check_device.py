@@ -9,7 +9,8 @@ of shared/PROTOCOL.md (COBS, CRC-32, postcard; Python standard library only):
 2. uploads a CANARY-like configuration (112x112, 7x7 windows of 16x16, background map of
    50 counts, subtract-next N=20) in chunks, commit -> ConfigApplied;
 3. streams frames as PixelRows over UART0, then as PixelRows frames through the FIFO, and
-   collects Slopes/FrameDone; reports frames/s for both paths;
+   collects Slopes/FrameDone; reports frames/s for both paths; a StatusRequest sent while
+   the FIFO stream flows must be answered;
 4. closes the FIFO (the device must keep answering on UART0: StatusRequest round trip),
    reopens it and streams more; uploads a second configuration (subtract-mean M=4, N=12,
    threshold, level filter) and streams through the FIFO again;
