@@ -41,7 +41,9 @@ impl<'a> Calibrator<'a> {
 }
 
 /// One pass doing the steps selected by the flags (which must match the
-/// maps present in `c`).
+/// maps present in `c`), written as zipped iterators over exactly `n`
+/// entries of each slice, so that the loop walks pointers without bounds
+/// checks.
 #[inline(always)]
 fn pass<const BACKGROUND: bool, const GAIN: bool, const THRESHOLD: bool>(
     c: &Calibration<'_>,
@@ -51,30 +53,43 @@ fn pass<const BACKGROUND: bool, const GAIN: bool, const THRESHOLD: bool>(
 ) {
     let n = raw.len();
     let out = &mut out[..n];
-    // Map slices of exactly `n` entries (one bounds check each, per run).
-    let background: &[i32] = match c.background {
-        Some(map) if BACKGROUND => &map[first_pixel..][..n],
-        _ => &[],
-    };
-    let gain: &[u16] = match c.gain {
-        Some(map) if GAIN => &map[first_pixel..][..n],
-        _ => &[],
-    };
     let threshold = c.threshold.unwrap_or(i32::MIN);
-    for k in 0..n {
-        // 1. d = 16 r - B   (-2^20 <= d < 2^21)
-        let mut d = (raw[k] as i32) << 4;
-        if BACKGROUND {
-            d -= background[k];
+    // 1. d = 16 r - B   (-2^20 <= d < 2^21)
+    let shifted = raw.iter().map(|&r| (r as i32) << 4);
+    // 2. |d * G| < 2^37: the product needs 64 bits; the shifted result fits 26.
+    let gained = |d: i32, g: u16| ((d as i64 * g as i64) >> 12) as i32;
+    match (c.background, c.gain) {
+        (Some(background), Some(gain)) if BACKGROUND && GAIN => {
+            let maps = background[first_pixel..][..n]
+                .iter()
+                .zip(&gain[first_pixel..][..n]);
+            let d = shifted.zip(maps).map(|(d, (&b, &g))| gained(d - b, g));
+            store::<THRESHOLD>(out, d, threshold)
         }
-        // 2. |d * G| < 2^37: the product needs 64 bits; the shifted result fits 26.
-        if GAIN {
-            d = ((d as i64 * gain[k] as i64) >> 12) as i32;
+        (Some(background), _) if BACKGROUND => {
+            let d = shifted
+                .zip(&background[first_pixel..][..n])
+                .map(|(d, &b)| d - b);
+            store::<THRESHOLD>(out, d, threshold)
         }
-        // 3. threshold
-        if THRESHOLD && d < threshold {
-            d = 0;
+        (_, Some(gain)) if GAIN => {
+            let d = shifted
+                .zip(&gain[first_pixel..][..n])
+                .map(|(d, &g)| gained(d, g));
+            store::<THRESHOLD>(out, d, threshold)
         }
-        out[k] = d;
+        _ => store::<THRESHOLD>(out, shifted, threshold),
+    }
+}
+
+/// 3. threshold, and the store.
+#[inline(always)]
+fn store<const THRESHOLD: bool>(
+    out: &mut [i32],
+    values: impl Iterator<Item = i32>,
+    threshold: i32,
+) {
+    for (o, d) in out.iter_mut().zip(values) {
+        *o = if THRESHOLD && d < threshold { 0 } else { d };
     }
 }
