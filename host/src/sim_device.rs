@@ -861,6 +861,17 @@ impl QemuDevice {
         Ok(())
     }
 
+    /// [`QemuDevice::release_fifo`] on a thread, for when the board opens
+    /// the FIFO only later (with `-serial unix:..,wait=on` QEMU starts the
+    /// firmware only once a client has connected).
+    pub fn release_fifo_in_background(&self, wait: Duration) {
+        if let Some(path) = self.fifo.clone() {
+            let _ = spawn("brightpix-qemu-fifo", move || {
+                let _ = crate::link::FifoWriter::open(&path, wait);
+            });
+        }
+    }
+
     /// The port a client opens: `/dev/pts/N` or `unix:PATH`.
     pub fn port(&self) -> &str {
         &self.port

@@ -1,6 +1,13 @@
 //! The `brightpix` command line: one module per subcommand.
 
+mod capture;
+mod configure;
+mod demo;
+mod devices;
 mod process;
+mod simulate_device;
+mod status;
+mod stream;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -20,6 +27,13 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     Process(process::ProcessArgs),
+    Demo(demo::DemoArgs),
+    Devices(devices::DevicesArgs),
+    Configure(configure::ConfigureArgs),
+    Status(status::StatusArgs),
+    Stream(stream::StreamArgs),
+    Capture(capture::CaptureArgs),
+    SimulateDevice(simulate_device::SimulateDeviceArgs),
 }
 
 /// Runs the command line; errors are printed with their causes.
@@ -27,6 +41,13 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let outcome = match cli.command {
         Command::Process(args) => process::run(args),
+        Command::Demo(args) => demo::run(args),
+        Command::Devices(args) => devices::run(args),
+        Command::Configure(args) => configure::run(args),
+        Command::Status(args) => status::run(args),
+        Command::Stream(args) => stream::run(args),
+        Command::Capture(args) => capture::run(args),
+        Command::SimulateDevice(args) => simulate_device::run(args),
     };
     match outcome {
         Ok(()) => ExitCode::SUCCESS,
