@@ -38,15 +38,21 @@ impl Moments {
     /// A row segment with weight = value (no selection): columns `i0..`, row `j`.
     #[inline(always)]
     pub fn add_row(&mut self, values: &[i32], i0: u16, j: u16) {
-        let mut sum = 0i64;
-        let mut sum_i = 0i64;
-        for (k, &p) in values.iter().enumerate() {
-            sum += p as i64;
-            // |p| < 2^25 and i < 64: the product fits in 32 bits.
-            sum_i += (p * (i0 as i32 + k as i32)) as i64;
+        // sum(p * i) without a multiply per pixel: with prefix sums
+        // S_k = p_0 + .. + p_k and S = S_(n-1), sum_k S_k = sum_k p_k (n - k),
+        // so sum_k k p_k = n S - sum_k S_k. A segment is at most 64 values
+        // (a window's width) of |p| < 2^25, so every S_k fits 32 bits
+        // (|S_k| <= 64 (2^25 - 1) < 2^31); their sum needs 64.
+        let mut prefix = 0i32;
+        let mut prefix_sum = 0i64;
+        for &p in values {
+            prefix += p;
+            prefix_sum += prefix as i64;
         }
+        let sum = prefix as i64;
+        let n = values.len() as i64;
         self.sum_w += sum;
-        self.sum_wi += sum_i;
+        self.sum_wi += i0 as i64 * sum + (n * sum - prefix_sum);
         self.sum_wj += sum * j as i64;
     }
 }
