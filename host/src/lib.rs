@@ -2,6 +2,7 @@
 pub mod cli;
 pub mod config_file;
 pub mod engine_runner;
+pub mod evaluation;
 pub mod io;
 pub mod link;
 pub mod reference;

@@ -4,10 +4,12 @@ mod capture;
 mod configure;
 mod demo;
 mod devices;
+mod paper;
 mod process;
 mod simulate_device;
 mod status;
 mod stream;
+mod tune;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -27,6 +29,8 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     Process(process::ProcessArgs),
+    Paper(paper::PaperArgs),
+    Tune(tune::TuneArgs),
     Demo(demo::DemoArgs),
     Devices(devices::DevicesArgs),
     Configure(configure::ConfigureArgs),
@@ -41,6 +45,8 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let outcome = match cli.command {
         Command::Process(args) => process::run(args),
+        Command::Paper(args) => paper::run(args),
+        Command::Tune(args) => tune::run(args),
         Command::Demo(args) => demo::run(args),
         Command::Devices(args) => devices::run(args),
         Command::Configure(args) => configure::run(args),
