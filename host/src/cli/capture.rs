@@ -42,6 +42,7 @@ pub fn run(args: CaptureArgs) -> Result<()> {
     }
     let (outcomes, error) = match client.capture(args.frames_count) {
         Ok(o) => (o, None),
+        Err(i) if i.received.is_empty() => return Err(i.error.into()),
         Err(i) => (i.received, Some(i.error)),
     };
     let n = subapertures.unwrap_or_else(|| {
