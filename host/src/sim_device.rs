@@ -781,6 +781,9 @@ impl QemuDevice {
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
+        // Its own process group: Ctrl-C in a terminal reaches this process,
+        // which then stops QEMU, rather than QEMU directly.
+        std::os::unix::process::CommandExt::process_group(&mut command, 0);
         let mut child = command.spawn().with_context(|| {
             format!(
                 "cannot start {} (install it: apt-get install qemu-system-arm)",

@@ -386,7 +386,10 @@ impl Client {
 
     fn handshake(&mut self) -> Result<(), LinkError> {
         // Old bytes (a previous session's results) are of no interest.
-        while self.pump(Duration::from_millis(20))? > 0 {}
+        let draining = Instant::now();
+        while self.pump(Duration::from_millis(20))? > 0
+            && draining.elapsed() < Duration::from_millis(500)
+        {}
         self.forget_everything();
         let started = Instant::now();
         let mut frame = vec![0u8]; // resynchronise the device's receiver
