@@ -445,3 +445,67 @@ fn invalid_configurations_get_specific_errors() {
         assert!(!error.to_string().is_empty());
     }
 }
+
+/// The bounds SPEC.md §2 and §5 rely on, at their edges: raw 65535 with the
+/// most negative background and the largest gain (|p| just under 2^25) on
+/// 64-pixel-wide windows, every rule, with overflow checks on (test profile).
+#[test]
+fn extreme_values_at_the_arithmetic_bounds() {
+    let camera = Camera {
+        width: 128,
+        height: 64,
+        bit_depth: 16,
+    };
+    let windows = [
+        SubapertureWindow {
+            x: 0,
+            y: 0,
+            width: 64,
+            height: 64,
+        },
+        SubapertureWindow {
+            x: 64,
+            y: 0,
+            width: 64,
+            height: 64,
+        },
+    ];
+    let pixels = camera.pixel_count();
+    // Left window: everything at the positive extreme; right: alternating
+    // extremes of both signs.
+    let background: Vec<i32> = (0..pixels)
+        .map(|k| {
+            if k % 128 < 64 || k % 2 == 0 {
+                -(1 << 20)
+            } else {
+                1 << 20
+            }
+        })
+        .collect();
+    let gain = vec![u16::MAX; pixels];
+    let frames: Vec<Vec<u16>> = vec![
+        vec![u16::MAX; pixels],
+        (0..pixels)
+            .map(|k| if k % 3 == 0 { u16::MAX } else { 0 })
+            .collect(),
+        frame(camera, 5),
+    ];
+    for rule in [
+        SelectionRule::Threshold,
+        SelectionRule::SubtractNext,
+        SelectionRule::SubtractNextDistinct,
+        SelectionRule::SubtractMean { count: 16 },
+    ] {
+        for n in [1, 20, 4095, 4096] {
+            let config = Config {
+                calibration: Calibration {
+                    background: Some(&background),
+                    gain: Some(&gain),
+                    threshold: None,
+                },
+                ..config(camera, &windows, rule, n)
+            };
+            assert_engine_matches_reference(config, &frames, 100);
+        }
+    }
+}
