@@ -2,7 +2,7 @@
 
 use crate::config_file::ProcessingConfig;
 use crate::evaluation::tune::{
-    candidate_methods, jobs_per_class, plan, tune, Conditions, Lgs, TuneOptions,
+    candidate_methods, jobs_per_class, plan, pupil_mse, tune, Conditions, Lgs, TuneOptions,
 };
 use crate::evaluation::Axis;
 use crate::simulator::SimulationParams;
@@ -180,12 +180,12 @@ pub fn run(args: TuneArgs) -> Result<()> {
     let mut report = String::new();
     writeln!(
         report,
-        "rule: {} (candidates: {})",
+        "rule: {} (pupil RMS R at each class's best N: {}; the first (simplest) rule within 1% or 2 paired standard errors of the best is kept)",
         result.method.label(),
         options
             .methods
             .iter()
-            .map(|m| m.label())
+            .map(|&m| format!("{} {:.4}", m.label(), pupil_mse(&result.classes, m).sqrt()))
             .collect::<Vec<_>>()
             .join(", ")
     )?;

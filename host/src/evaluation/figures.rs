@@ -428,6 +428,9 @@ pub struct Row {
 pub struct FigureResult {
     pub figure: Figure,
     pub rows: Vec<Row>,
+    /// Per case, R of a slope that is always 0 (the RMS of the true slope on
+    /// the figure's axis): an estimator with no information.
+    pub zero_r: Vec<f64>,
     pub seconds: f64,
 }
 
@@ -458,12 +461,14 @@ pub fn run_figure(fig: Figure, opts: &RunOptions) -> Result<FigureResult> {
     let frames = frames_for(fig.frames, opts);
     let bar = progress_bar((2 * frames * fig.cases.len()) as u64, fig.name);
     let mut rows = Vec::new();
+    let mut zero_r = Vec::new();
     for (ci, c) in fig.cases.iter().enumerate() {
         bar.set_message(format!("{}: simulating", c.label));
         let sim = Simulator::new(c.params.clone())
             .map_err(|e| anyhow!("{}: {}: {e}", fig.name, c.label))?;
         let batch = Batch::simulate(&sim, opts.seed, frames, 512, &|n| bar.inc(n as u64));
         let n = batch.pixel_count();
+        zero_r.push(zero_estimate_r(&batch, fig.axis));
         let grid = default_pixel_grid(n);
         let job_count = jobs(n, &fig.methods, &grid).len();
         let done = std::sync::atomic::AtomicUsize::new(0);
@@ -488,8 +493,23 @@ pub fn run_figure(fig: Figure, opts: &RunOptions) -> Result<FigureResult> {
     Ok(FigureResult {
         figure: fig,
         rows,
+        zero_r,
         seconds: started.elapsed().as_secs_f64(),
     })
+}
+
+/// R of the estimate "slope = 0": the RMS of the true slopes on `axis`.
+pub fn zero_estimate_r(batch: &Batch, axis: Axis) -> f64 {
+    let sq: f64 = batch
+        .true_slopes
+        .iter()
+        .map(|t| match axis {
+            Axis::X => t[0] * t[0],
+            Axis::Y => t[1] * t[1],
+            Axis::Both => 0.5 * (t[0] * t[0] + t[1] * t[1]),
+        })
+        .sum();
+    (sq / batch.len().max(1) as f64).sqrt()
 }
 
 fn fmt_value(v: f64) -> String {
@@ -618,6 +638,11 @@ pub fn write_figure(result: &FigureResult, out: &Path) -> Result<Vec<PathBuf>> {
                     .map(|r| (fig.cases[ci].value, r.score.r(fig.axis).value))
             })
             .collect();
+        let top = series
+            .iter()
+            .flat_map(|s| s.points.iter().map(|p| p.1))
+            .chain(result.zero_r.iter().copied())
+            .fold(0.0f64, f64::max);
         series.push(Series {
             label: "all pixels (no selection)".into(),
             color: COLORS[7],
@@ -626,13 +651,26 @@ pub fn write_figure(result: &FigureResult, out: &Path) -> Result<Vec<PathBuf>> {
             points: pts,
             ring_last: false,
         });
+        series.push(Series {
+            label: "slope always 0 (no information)".into(),
+            color: COLORS[6],
+            marker: Marker::None,
+            dashed: true,
+            points: fig
+                .cases
+                .iter()
+                .zip(&result.zero_r)
+                .map(|(c, &r)| (c.value, r))
+                .collect(),
+            ring_last: false,
+        });
         let plot = Plot {
             title: format!("{}: R at the best N of each rule", fig.title),
             x_desc: x_desc.into(),
             y_desc: y_desc.clone(),
             x_log: false,
             series,
-            y_range: None,
+            y_range: Some(0.0..1.1 * top),
         };
         let path = out.join(format!("{}-best.svg", fig.name));
         plot::write_svg(&path, &plot, (1000, 560))?;
@@ -693,9 +731,9 @@ pub fn summary(result: &FigureResult) -> String {
     );
     let _ = writeln!(
         s,
-        "| case | method | best N | R(best) | R(N=20) | R(all) | N with R within 5% of best | R(all) - R(best), paired |"
+        "| case | method | best N | R(best) | R(N=20) | R(all) | N with R within 5% of best | R(all) - R(best), paired | R(slope 0) |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
     for (ci, c) in fig.cases.iter().enumerate() {
         for &m in &fig.methods {
             let rows: Vec<&Row> = result
@@ -726,7 +764,7 @@ pub fn summary(result: &FigureResult) -> String {
             });
             let _ = writeln!(
                 s,
-                "| {} | {} | {}{} | {:.4} ± {:.4} | {} | {} | {}..{} | {} |",
+                "| {} | {} | {}{} | {:.4} ± {:.4} | {} | {} | {}..{} | {} | {:.3} |",
                 c.label,
                 m.label(),
                 best.score.pixels,
@@ -737,7 +775,8 @@ pub fn summary(result: &FigureResult) -> String {
                 fmt(all.copied()),
                 near.iter().min().copied().unwrap_or(0),
                 near.iter().max().copied().unwrap_or(0),
-                gain
+                gain,
+                result.zero_r.get(ci).copied().unwrap_or(f64::NAN)
             );
         }
     }
@@ -776,6 +815,9 @@ pub fn run_and_write(name: &str, opts: &RunOptions) -> Result<String> {
 // ---------------------------------------------------------------------------
 // Linearity (paper §2.4, §3.8, Fig. 11)
 // ---------------------------------------------------------------------------
+
+/// The linearity ramp's constant y position (pixels).
+pub const LINEARITY_Y_OFFSET: f64 = 0.2;
 
 /// N values of the linearity study: the union of the paper's Fig. 11a-c.
 const LINEARITY_N: [usize; 13] = [1, 3, 4, 5, 7, 9, 10, 13, 15, 20, 25, 50, 100];
@@ -853,8 +895,12 @@ pub fn run_linearity(opts: &RunOptions) -> Result<String> {
     };
     let sim = Simulator::new(params).map_err(|e| anyhow!("linearity: {e}"))?;
     let max_tilt = 3.0;
+    // A small constant y offset: with the spot exactly centred in y, pairs of
+    // pixels tie exactly (noiseless, integer counts), and subtract-next with
+    // N = 1, 3, ... then weighs them all 0 (SPEC §3; the paper's float images
+    // never tie exactly).
     let tilts: Vec<[f64; 2]> = (0..steps)
-        .map(|i| [max_tilt * i as f64 / (steps - 1) as f64, 0.0])
+        .map(|i| [max_tilt * i as f64 / (steps - 1) as f64, LINEARITY_Y_OFFSET])
         .collect();
     let methods = [Method::SUBTRACT_NEXT, Method::THRESHOLD];
     let n = sim.size() * sim.size();
@@ -960,7 +1006,7 @@ pub fn run_linearity(opts: &RunOptions) -> Result<String> {
             "Fig. 11c: residual, threshold only (traces offset)",
         ),
     ] {
-        let step = 0.5;
+        let step = 0.2;
         let mut series = Vec::new();
         for (j, &k) in bc_ns.iter().enumerate() {
             let (_, _, xs) = curves
@@ -987,7 +1033,7 @@ pub fn run_linearity(opts: &RunOptions) -> Result<String> {
             y_desc: "slope(N) - slope(all) + offset (pixels)".into(),
             x_log: false,
             series,
-            y_range: Some(-0.8..(step * bc_ns.len() as f64 + 0.3)),
+            y_range: Some(-0.6..(step * bc_ns.len() as f64 + 0.6)),
         };
         plot::write_svg(&opts.out.join(file), &plot, (1000, 620))?;
     }
@@ -995,7 +1041,7 @@ pub fn run_linearity(opts: &RunOptions) -> Result<String> {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "### Fig. 11: linearity (`linearity`)\n\n{steps} tilts from 0 to {max_tilt} px along x, no turbulence, no noise (image scaled to a 50000-count peak); linear fit of the engine's slope against its all-pixel slope; {:.0} s.\n",
+        "### Fig. 11: linearity (`linearity`)\n\n{steps} tilts from 0 to {max_tilt} px along x (y = {LINEARITY_Y_OFFSET} px), no turbulence, no noise (image scaled to a 50000-count peak); linear fit of the engine's slope against its all-pixel slope; {:.0} s.\n",
         started.elapsed().as_secs_f64()
     );
     let _ = writeln!(

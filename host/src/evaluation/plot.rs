@@ -109,6 +109,17 @@ pub fn write_svg(path: &Path, plot: &Plot, size: (u32, u32)) -> Result<()> {
         .clone()
         .unwrap_or_else(|| auto_y_range(&plot.series));
     let x = x_range(plot);
+    let clipped = plot
+        .series
+        .iter()
+        .flat_map(|s| s.points.iter())
+        .any(|p| p.1 > y.end || p.1 < y.start);
+    let mut plot = plot.clone();
+    if clipped {
+        plot.y_desc
+            .push_str(" [off-scale values drawn at the edge]");
+    }
+    let plot = &plot;
     if plot.x_log {
         draw(&chart_area, plot, x.log_scale(), y)?;
     } else {

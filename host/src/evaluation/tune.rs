@@ -324,6 +324,69 @@ pub fn plan(
     make_classes(config, &distances, classes, conditions.lgs.is_some())
 }
 
+/// The pupil-averaged `R^2` of `m` with each class at its best N.
+pub fn pupil_mse(classes: &[Class], m: Method) -> f64 {
+    let mut value = 0.0;
+    let mut count = 0.0;
+    for c in classes {
+        let Some(s) = c.best(m) else {
+            return f64::INFINITY;
+        };
+        let w = c.members.len() as f64;
+        value += w * s.mse(Axis::Both).value;
+        count += w;
+    }
+    value / count
+}
+
+/// The rule: the least pupil-summed `R^2` with each class at its best N,
+/// except that the first candidate (in the order given: simplest first) that
+/// is not worse than that by more than two paired standard errors or 1% in
+/// R wins, so that a meaningless gain never trades the paper's subtract-next
+/// for a more complex rule.
+pub fn choose_method(classes: &[Class], methods: &[Method]) -> Method {
+    let best = methods
+        .iter()
+        .copied()
+        .min_by(|a, b| pupil_mse(classes, *a).total_cmp(&pupil_mse(classes, *b)))
+        .expect("methods is not empty");
+    for &m in methods {
+        if m == best {
+            return m;
+        }
+        // Paired standard error of the difference, class by class (same
+        // frames): sum of w^2 var(per-frame difference) / K.
+        let mut var = 0.0;
+        let mut diff = 0.0;
+        for c in classes {
+            let (Some(a), Some(b)) = (c.best(m), c.best(best)) else {
+                continue;
+            };
+            let w = c.members.len() as f64;
+            let (_, se) = super::mean_se(
+                a.squared_errors
+                    .iter()
+                    .zip(&b.squared_errors)
+                    .map(|(x, y)| 0.5 * (x[0] + x[1]) - 0.5 * (y[0] + y[1])),
+            );
+            diff += w * (a.mse(Axis::Both).value - b.mse(Axis::Both).value);
+            var += (w * se).powi(2);
+        }
+        // Also within 1% in R (2% in R^2): not worth a more complex rule.
+        let total: f64 = classes
+            .iter()
+            .filter_map(|c| {
+                c.best(best)
+                    .map(|s| c.members.len() as f64 * s.mse(Axis::Both).value)
+            })
+            .sum();
+        if diff <= (2.0 * var.sqrt()).max(0.02 * total) {
+            return m;
+        }
+    }
+    best
+}
+
 /// Simulates the conditions for every class, scores every candidate and
 /// picks the rule and the N per class. `progress(frames, jobs)` is called
 /// as work completes.
@@ -363,23 +426,7 @@ pub fn tune(
             class.current = Some(batch.score(current_method, current_n[0] as usize)?);
         }
     }
-    // The rule: least pupil-summed R^2 at each class's best N.
-    let total = |m: Method| -> f64 {
-        classes
-            .iter()
-            .map(|c| {
-                c.best(m).map_or(f64::INFINITY, |s| {
-                    s.mse(Axis::Both).value * c.members.len() as f64
-                })
-            })
-            .sum()
-    };
-    let method = options
-        .methods
-        .iter()
-        .copied()
-        .min_by(|a, b| total(*a).total_cmp(&total(*b)))
-        .expect("methods is not empty");
+    let method = choose_method(&classes, &options.methods);
     let mut pixels = vec![0u16; config.windows.len()];
     for class in &mut classes {
         let best = class.best(method).expect("scored").clone();
