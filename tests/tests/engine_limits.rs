@@ -80,7 +80,9 @@ fn elt_class_80x80_grid_on_a_960x960_camera() {
     assert_eq!(windows.len(), 6400);
     let config = config(camera, &windows, SelectionRule::SubtractNext, 20);
     let mut buffers = EngineBuffers::for_config(&config);
-    let needed = Engine::new(config, buffers.memory()).unwrap().memory_needed();
+    let needed = Engine::new(config, buffers.memory())
+        .unwrap()
+        .memory_needed();
     // One grid row of windows open at a time: the memory budget of memory.rs.
     assert_eq!(needed.open_windows, 80);
     assert_eq!(needed.pool_entries, 80 * 21);
