@@ -137,7 +137,7 @@ fn tick(v: f64) -> String {
         format!("{v:.0}")
     } else {
         let s = format!("{v:.3}");
-        s.trim_end_matches('0').to_string()
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
     }
 }
 
