@@ -1,4 +1,5 @@
 //! # brightpix-firmware
 #![no_std]
+pub mod camera;
 pub mod device;
 pub mod engine;

@@ -1,36 +1,64 @@
-//! brightpix on the STM32H743ZI (e.g. NUCLEO-H743ZI): board bring-up.
+//! brightpix on the STM32H743ZI (e.g. NUCLEO-H743ZI): the production board.
 //!
-//! For now: 400 MHz from HSI via PLL1, USB OTG FS (PA11/PA12) as a CDC-ACM serial
-//! port that echoes what it receives; defmt over RTT. The device loop and the
-//! camera (DCMI) replace the echo later. NOT yet run on hardware.
+//! The board-independent device loop (`brightpix_firmware::device`) with
+//! - the host link: USB OTG FS (PA11/PA12) as a CDC-ACM serial port
+//!   ([`usb_link`]); on a disconnect the loop ends and is run again at the
+//!   next connection, keeping its configuration and counters;
+//! - the camera: the DCMI parallel interface in continuous mode, streamed by
+//!   circular DMA into a ring in AXI SRAM ([`dcmi`]) and cut into pixel runs
+//!   by `brightpix_firmware::camera::DcmiSource`;
+//! - storage across DTCM, AXI SRAM and D2 SRAM ([`storage`]);
+//! - 400 MHz from HSI via PLL1, I- and D-cache on; defmt over RTT.
+//!
+//! NOT RUN ON HARDWARE: it builds; the camera source's logic is tested on
+//! the host (`tests/tests/camera_*.rs`); see firmware/README.md.
 #![no_std]
 #![no_main]
 
+mod dcmi;
+mod storage;
+mod usb_link;
+
 use brightpix_board_common::executor;
+use brightpix_firmware::camera::{DataWidth, DcmiSource};
+use brightpix_firmware::device::Device;
 use cortex_m_rt::entry;
 use defmt_rtt as _;
 use embassy_executor::Spawner;
 use embassy_futures::join::join;
+use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::usb::{self, Driver};
-use embassy_stm32::{bind_interrupts, peripherals};
+use embassy_stm32::{bind_interrupts, interrupt, peripherals};
 use embassy_time::Instant;
 use embassy_usb::class::cdc_acm::{CdcAcmClass, State};
-use embassy_usb::driver::EndpointError;
 use embassy_usb::Builder;
 use panic_probe as _;
 
+use crate::usb_link::{UsbLink, PACKET};
+
 bind_interrupts!(struct Irqs {
     OTG_FS => usb::InterruptHandler<peripherals::USB_OTG_FS>;
+    DCMI => dcmi::DcmiInterrupt;
+    DMA1_STREAM0 => dcmi::DmaInterrupt;
 });
 
 defmt::timestamp!("{=u64:us}", Instant::now().as_micros());
 
-/// Full-speed bulk endpoint size.
-const MAX_PACKET: u16 = 64;
+/// What the DCMI samples: 12 bits per pixel, one pixel per 16-bit halfword
+/// (pins D0-D11). Change for an 8-, 10- or 14-bit camera.
+const DATA_WIDTH: DataWidth = DataWidth::Bits12;
+
+/// Reported to the host in `HelloReply`.
+const BOARD: &str = "stm32h743-nucleo";
 
 #[entry]
 fn main() -> ! {
-    executor::run(|spawner: Spawner| spawner.spawn(usb_echo().unwrap()))
+    // Storage first: AXI and D2 SRAM are zeroed before the D-cache is on.
+    let memory = storage::take();
+    let mut cp = cortex_m::Peripherals::take().unwrap();
+    cp.SCB.enable_icache();
+    cp.SCB.enable_dcache(&mut cp.CPUID);
+    executor::run(move |spawner: Spawner| spawner.spawn(device_task(memory).unwrap()))
 }
 
 fn clocks() -> embassy_stm32::Config {
@@ -51,23 +79,34 @@ fn clocks() -> embassy_stm32::Config {
         divr: None,
     });
     config.rcc.sys = Sysclk::PLL1_P;
-    config.rcc.ahb_pre = AHBPrescaler::DIV2; // 200 MHz
+    config.rcc.ahb_pre = AHBPrescaler::DIV2; // 200 MHz (DCMI, DMA, AXI)
     config.rcc.apb1_pre = APBPrescaler::DIV2;
     config.rcc.apb2_pre = APBPrescaler::DIV2;
     config.rcc.apb3_pre = APBPrescaler::DIV2;
     config.rcc.apb4_pre = APBPrescaler::DIV2;
     config.rcc.voltage_scale = VoltageScale::Scale1;
     config.rcc.mux.usbsel = mux::Usbsel::HSI48;
+    // DMA interrupts (the DCMI ring's half events among them) at the top.
+    config.dma_interrupt_priority = Priority::P0;
     config
 }
 
-/// USB CDC-ACM echo. Everything lives in this task's (static) future, so the
-/// descriptor buffers can be borrowed for the lifetime of the USB stack.
+type Memory = (
+    &'static mut storage::AxiSram,
+    &'static mut storage::D2Sram,
+    &'static mut storage::Dtcm,
+);
+
+/// The device: USB, camera, device loop. Everything lives in this task's
+/// (static) future, so the USB descriptor buffers can be borrowed for the
+/// lifetime of the USB stack.
 #[embassy_executor::task]
-async fn usb_echo() {
+async fn device_task(memory: Memory) {
+    let (axi, d2, dtcm) = memory;
     let p = embassy_stm32::init(clocks());
     defmt::info!("brightpix-stm32h743: hello");
 
+    // --- USB CDC-ACM ---------------------------------------------------------
     let mut ep_out_buffer = [0u8; 256];
     let mut usb_config = usb::Config::default();
     // NUCLEO-H743ZI: VBUS of the user USB connector is wired to PA9.
@@ -80,6 +119,8 @@ async fn usb_echo() {
         &mut ep_out_buffer,
         usb_config,
     );
+    // Below the DMA (P0) and the camera (P1).
+    interrupt::OTG_FS.set_priority(Priority::P2);
 
     // pid.codes test VID/PID; replace before shipping.
     let mut config = embassy_usb::Config::new(0x1209, 0x0001);
@@ -100,37 +141,46 @@ async fn usb_echo() {
         &mut [], // no MS OS descriptors
         &mut control_buf,
     );
-    let mut class = CdcAcmClass::new(&mut builder, &mut state, MAX_PACKET);
+    let class = CdcAcmClass::new(&mut builder, &mut state, PACKET as u16);
     let mut usb = builder.build();
 
-    let echo = async {
+    // --- the camera ------------------------------------------------------------
+    let pins = dcmi::DcmiPins::new(
+        p.PA6, p.PA4, p.PG9, p.PC6, p.PC7, p.PC8, p.PC9, p.PC11, p.PD3, p.PE5, p.PE6, p.PC10,
+        p.PC12, p.PD6, p.PD2, p.PF11, p.PG15,
+    );
+    let ring = dcmi::DcmiRing::new(p.DCMI, p.DMA1_CH0, pins, &mut axi.ring, DATA_WIDTH);
+    let (device_memory, run_words, run_pixels) = dtcm.split();
+    let camera = DcmiSource::new(ring, DATA_WIDTH, run_words, run_pixels);
+
+    // --- the device loop ---------------------------------------------------------
+    let buffers = storage::device_buffers(&mut axi.background, d2, device_memory);
+    let mut device = Device::new(UsbLink::new(class), camera, buffers, BOARD);
+    let capabilities = device.capabilities();
+    defmt::info!(
+        "device: {=u32} sub-apertures, {=u32} camera pixels of maps, {=u32} open windows, {=u32} pool entries",
+        capabilities.max_subapertures,
+        capabilities.max_camera_pixels,
+        capabilities.max_open_windows,
+        capabilities.pool_entries
+    );
+
+    let serve = async {
         loop {
-            class.wait_connection().await;
+            device.link().wait_connection().await;
             defmt::info!("usb: connected");
-            let _ = echo(&mut class).await;
-            defmt::info!("usb: disconnected");
+            let Err(e) = device.run().await;
+            let (overruns, sync_errors, dma_errors, undrained) = dcmi::hardware_events();
+            defmt::info!(
+                "usb: link ended ({}); camera {}; DCMI overruns {=u32}, sync errors {=u32}, DMA errors {=u32}, FIFO not drained {=u32}",
+                defmt::Debug2Format(&e),
+                device.source().stats(),
+                overruns,
+                sync_errors,
+                dma_errors,
+                undrained
+            );
         }
     };
-    join(usb.run(), echo).await;
-}
-
-struct Disconnected;
-
-impl From<EndpointError> for Disconnected {
-    fn from(e: EndpointError) -> Self {
-        match e {
-            EndpointError::BufferOverflow => defmt::panic!("usb: buffer overflow"),
-            EndpointError::Disabled => Disconnected,
-        }
-    }
-}
-
-async fn echo<'d>(
-    class: &mut CdcAcmClass<'d, Driver<'d, peripherals::USB_OTG_FS>>,
-) -> Result<(), Disconnected> {
-    let mut buf = [0; MAX_PACKET as usize];
-    loop {
-        let n = class.read_packet(&mut buf).await?;
-        class.write_packet(&buf[..n]).await?;
-    }
+    join(usb.run(), serve).await;
 }

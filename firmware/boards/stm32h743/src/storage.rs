@@ -1,0 +1,196 @@
+//! Where the device's memory lives on the STM32H743, and how much there is.
+//!
+//! Sized for a 240 x 240 camera (e.g. an OCAM2-class EMCCD) with background
+//! and gain maps, 1600 sub-apertures (a 40 x 40 Shack-Hartmann grid of 6 x 6
+//! windows), in three memories (see the repository root's `memory.x`):
+//!
+//! | memory | what | bytes |
+//! |---|---|---|
+//! | DTCM (128 KiB, RAM: `.data`/`.bss`/stack) | engine memory (1600 sub-apertures, 128 open windows, 4096 pool entries) | 63 104 |
+//! | | upload vetting scratch, result queue (64 per row), link buffers, `PixelRows` batch | 12 000 |
+//! | | camera run buffers (256 words, 1024 pixels) | 3 072 |
+//! | | stack (at least, checked by the linker), executor task, USB, defmt | >= 16 384 + ~10 000 |
+//! | AXI SRAM (512 KiB, DMA-reachable) | DCMI DMA ring: 7680 words = 64 rows of 240 pixels at 16 bits | 30 720 |
+//! | | background maps, 2 slots x 57 600 x i32 | 460 800 |
+//! | D2 SRAM1-3 (288 KiB) | gain maps, 2 slots x 57 600 x u16 | 230 400 |
+//! | | windows, pixel counts, reference slopes: 2 slots x 1600 x 18 | 57 600 |
+//!
+//! The engine is never touched by DMA, so it goes in the DTCM (zero wait
+//! states); only the DMA ring must be in AXI SRAM. Two configuration slots
+//! (active and staging, for atomic commits) double the maps: a single 240 x
+//! 240 slot with maps is 345 600 bytes, two do not fit the AXI SRAM alone.
+//! Every size is checked at compile time below and by the linker.
+
+use core::mem::{size_of, MaybeUninit};
+use core::sync::atomic::{AtomicBool, Ordering};
+
+use brightpix_firmware::device::storage::PIXEL_BATCH;
+use brightpix_firmware::device::{ConfigSlot, DeviceBuffers};
+use brightpix_firmware::engine::{StaticEngineMemory, SubapertureResult};
+use brightpix_protocol::wire::MAX_FRAME_LEN;
+use brightpix_protocol::SubapertureWindow;
+
+/// Camera pixels of calibration maps per configuration slot.
+pub const CAMERA_PIXELS: usize = 240 * 240;
+/// Sub-apertures per configuration.
+pub const SUBAPERTURES: usize = 1600;
+/// Windows open at once (one grid row of 40, with room for irregular layouts).
+pub const OPEN_WINDOWS: usize = 128;
+/// Selection pool entries (e.g. 128 open windows x N + 1 = 32).
+pub const POOL_ENTRIES: usize = 4096;
+/// Results one camera row may finish.
+pub const RESULTS_PER_ROW: usize = 64;
+/// The DCMI DMA ring, in 32-bit words: 64 rows of a 240-pixel camera in an
+/// extended (16 bits per pixel) mode, 128 rows in 8-bit mode. A multiple of
+/// 16 words (each half whole cache lines), below the DMA's 65 535.
+pub const RING_WORDS: usize = 7680;
+/// Words per pixel run handed to the device loop.
+pub const RUN_WORDS: usize = 256;
+
+/// AXI SRAM: the DMA ring and the background maps.
+#[repr(C, align(32))]
+pub struct AxiSram {
+    pub ring: [u32; RING_WORDS],
+    pub background: [[i32; CAMERA_PIXELS]; 2],
+}
+
+/// D2 SRAM1-3: the gain maps and the per-sub-aperture tables.
+#[repr(C, align(32))]
+pub struct D2Sram {
+    pub gain: [[u16; CAMERA_PIXELS]; 2],
+    pub windows: [[SubapertureWindow; SUBAPERTURES]; 2],
+    pub pixel_counts: [[u16; SUBAPERTURES]; 2],
+    pub reference_slopes: [[[i32; 2]; SUBAPERTURES]; 2],
+}
+
+const NO_RESULT: SubapertureResult = SubapertureResult {
+    index: 0,
+    slope_x: 0,
+    slope_y: 0,
+    flux: 0,
+    valid: false,
+};
+
+/// DTCM: everything the CPU works on per pixel, and the small buffers.
+pub struct Dtcm {
+    pub engine: StaticEngineMemory<SUBAPERTURES, OPEN_WINDOWS, POOL_ENTRIES>,
+    pub order: [u16; SUBAPERTURES],
+    pub scratch: [u16; SUBAPERTURES],
+    pub results: [SubapertureResult; RESULTS_PER_ROW],
+    pub rx: [u8; MAX_FRAME_LEN],
+    pub tx: [u8; MAX_FRAME_LEN],
+    pub pixels: [u16; PIXEL_BATCH],
+    pub run_words: [u32; RUN_WORDS],
+    pub run_pixels: [u16; 4 * RUN_WORDS],
+}
+
+impl Dtcm {
+    pub const fn new() -> Self {
+        Dtcm {
+            engine: StaticEngineMemory::new(),
+            order: [0; SUBAPERTURES],
+            scratch: [0; SUBAPERTURES],
+            results: [NO_RESULT; RESULTS_PER_ROW],
+            rx: [0; MAX_FRAME_LEN],
+            tx: [0; MAX_FRAME_LEN],
+            pixels: [0; PIXEL_BATCH],
+            run_words: [0; RUN_WORDS],
+            run_pixels: [0; 4 * RUN_WORDS],
+        }
+    }
+}
+
+const _: () = assert!(size_of::<AxiSram>() <= 512 * 1024);
+const _: () = assert!(size_of::<D2Sram>() <= 288 * 1024);
+const _: () = assert!(size_of::<Dtcm>() <= 96 * 1024);
+const _: () = assert!(RING_WORDS.is_multiple_of(brightpix_firmware::camera::RING_GRANULE_WORDS));
+const _: () = assert!(RING_WORDS <= 65_535);
+
+#[link_section = ".axisram"]
+static mut AXI_SRAM: MaybeUninit<AxiSram> = MaybeUninit::uninit();
+#[link_section = ".sram123"]
+static mut D2_SRAM: MaybeUninit<D2Sram> = MaybeUninit::uninit();
+/// In `.data`: initialised by cortex-m-rt (its initial image is in flash).
+static mut DTCM: Dtcm = Dtcm::new();
+
+static TAKEN: AtomicBool = AtomicBool::new(false);
+
+/// All of it, once: AXI and D2 SRAM zeroed (all-zero is a valid value of
+/// every field), the D2 SRAM clocks enabled first.
+pub fn take() -> (&'static mut AxiSram, &'static mut D2Sram, &'static mut Dtcm) {
+    assert!(!TAKEN.swap(true, Ordering::AcqRel), "storage taken twice");
+    embassy_stm32::pac::RCC.ahb2enr().modify(|w| {
+        w.set_sram1en(true);
+        w.set_sram2en(true);
+        w.set_sram3en(true);
+    });
+    cortex_m::asm::dsb();
+    // SAFETY: taken once (above); the sections are NOLOAD and only ever
+    // reached through these references; zero is a valid bit pattern for
+    // every field (integers, integer arrays, `SubapertureWindow`).
+    unsafe {
+        let axi = (&raw mut AXI_SRAM).cast::<AxiSram>();
+        axi.write_bytes(0, 1);
+        let d2 = (&raw mut D2_SRAM).cast::<D2Sram>();
+        d2.write_bytes(0, 1);
+        let dtcm = &raw mut DTCM;
+        (&mut *axi, &mut *d2, &mut *dtcm)
+    }
+}
+
+/// The device's buffers: the engine and small buffers from the DTCM,
+/// configuration slots across AXI (backgrounds) and D2 SRAM (the rest).
+pub fn device_buffers<'d>(
+    background: &'d mut [[i32; CAMERA_PIXELS]; 2],
+    d2: &'d mut D2Sram,
+    dtcm: DtcmDevice<'d>,
+) -> DeviceBuffers<'d> {
+    let [bg_a, bg_b] = background;
+    let [gain_a, gain_b] = &mut d2.gain;
+    let [win_a, win_b] = &mut d2.windows;
+    let [cnt_a, cnt_b] = &mut d2.pixel_counts;
+    let [ref_a, ref_b] = &mut d2.reference_slopes;
+    DeviceBuffers {
+        slots: [
+            ConfigSlot::new(win_a, cnt_a, ref_a, bg_a, gain_a),
+            ConfigSlot::new(win_b, cnt_b, ref_b, bg_b, gain_b),
+        ],
+        engine: dtcm.engine.borrow(),
+        order: dtcm.order,
+        scratch: dtcm.scratch,
+        results: dtcm.results,
+        rx: dtcm.rx,
+        tx: dtcm.tx,
+        pixels: dtcm.pixels,
+    }
+}
+
+/// The device's part of the DTCM, split from the camera's run buffers.
+pub struct DtcmDevice<'a> {
+    pub engine: &'a mut StaticEngineMemory<SUBAPERTURES, OPEN_WINDOWS, POOL_ENTRIES>,
+    pub order: &'a mut [u16],
+    pub scratch: &'a mut [u16],
+    pub results: &'a mut [SubapertureResult],
+    pub rx: &'a mut [u8],
+    pub tx: &'a mut [u8],
+    pub pixels: &'a mut [u16],
+}
+
+impl Dtcm {
+    /// The device's buffers and the camera's run buffers (words, pixels).
+    pub fn split(&mut self) -> (DtcmDevice<'_>, &mut [u32], &mut [u16]) {
+        (
+            DtcmDevice {
+                engine: &mut self.engine,
+                order: &mut self.order,
+                scratch: &mut self.scratch,
+                results: &mut self.results,
+                rx: &mut self.rx,
+                tx: &mut self.tx,
+                pixels: &mut self.pixels,
+            },
+            &mut self.run_words,
+            &mut self.run_pixels,
+        )
+    }
+}

@@ -1,0 +1,100 @@
+//! How the DCMI packs pixels into the 32-bit words its DMA writes.
+//!
+//! The DCMI collects the pixels it samples into 32-bit words, first pixel in
+//! the least significant bits (RM0433 "DCMI data register"):
+//!
+//! | mode (`DCMI_CR.EDM`) | pixels per word | layout of one word                         |
+//! |----------------------|-----------------|--------------------------------------------|
+//! | 8-bit (`0b00`)       | 4               | `p0` bits 7:0, `p1` 15:8, `p2` 23:16, `p3` 31:24 |
+//! | 10-bit (`0b01`)      | 2               | `p0` bits 9:0, `p1` bits 25:16, others 0   |
+//! | 12-bit (`0b10`)      | 2               | `p0` bits 11:0, `p1` bits 27:16, others 0  |
+//! | 14-bit (`0b11`)      | 2               | `p0` bits 13:0, `p1` bits 29:16, others 0  |
+//!
+//! In the extended modes each pixel takes one 16-bit halfword. The halfword
+//! is taken whole: nothing is masked, so a bit that should be 0 and is not
+//! shows up as a value above the camera's bit depth, which the engine
+//! refuses (`PixelOutOfRange`), instead of being silently cut off.
+
+/// The DCMI's data width (`DCMI_CR.EDM`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DataWidth {
+    Bits8,
+    Bits10,
+    Bits12,
+    Bits14,
+}
+
+impl DataWidth {
+    /// Bits per pixel on the parallel bus.
+    pub const fn bits(self) -> u8 {
+        match self {
+            DataWidth::Bits8 => 8,
+            DataWidth::Bits10 => 10,
+            DataWidth::Bits12 => 12,
+            DataWidth::Bits14 => 14,
+        }
+    }
+
+    /// Pixels in one 32-bit word.
+    pub const fn pixels_per_word(self) -> usize {
+        match self {
+            DataWidth::Bits8 => 4,
+            _ => 2,
+        }
+    }
+
+    /// The value of `DCMI_CR.EDM` for this width.
+    pub const fn edm(self) -> u8 {
+        match self {
+            DataWidth::Bits8 => 0b00,
+            DataWidth::Bits10 => 0b01,
+            DataWidth::Bits12 => 0b10,
+            DataWidth::Bits14 => 0b11,
+        }
+    }
+}
+
+/// Unpacks whole words into pixels in the order the camera sent them:
+/// `words.len() * pixels_per_word` pixels are written to the start of
+/// `out`, and their count returned. `out` must be long enough.
+pub fn unpack(width: DataWidth, words: &[u32], out: &mut [u16]) -> usize {
+    match width {
+        DataWidth::Bits8 => {
+            let out = &mut out[..words.len() * 4];
+            for (w, p) in words.iter().zip(out.chunks_exact_mut(4)) {
+                let b = w.to_le_bytes();
+                p[0] = b[0] as u16;
+                p[1] = b[1] as u16;
+                p[2] = b[2] as u16;
+                p[3] = b[3] as u16;
+            }
+            out.len()
+        }
+        _ => {
+            let out = &mut out[..words.len() * 2];
+            for (w, p) in words.iter().zip(out.chunks_exact_mut(2)) {
+                p[0] = *w as u16;
+                p[1] = (*w >> 16) as u16;
+            }
+            out.len()
+        }
+    }
+}
+
+/// Packs pixels into words as the DCMI does (the inverse of [`unpack`]);
+/// for simulations and tests. `pixels.len()` must be a multiple of the
+/// pixels per word; returns the number of words written.
+pub fn pack(width: DataWidth, pixels: &[u16], out: &mut [u32]) -> usize {
+    let per_word = width.pixels_per_word();
+    let n = pixels.len() / per_word;
+    for (w, p) in out[..n].iter_mut().zip(pixels.chunks_exact(per_word)) {
+        *w = match width {
+            DataWidth::Bits8 => {
+                u32::from_le_bytes([p[0] as u8, p[1] as u8, p[2] as u8, p[3] as u8])
+            }
+            _ => p[0] as u32 | (p[1] as u32) << 16,
+        };
+    }
+    n
+}

@@ -1,0 +1,466 @@
+//! The firmware's device loop with the DCMI camera source over the simulated
+//! ring (`camera_sim`): `Capture` streams slopes equal to a direct engine
+//! run, and an overrun reaches the host as a counted, dropped frame.
+
+mod camera_sim;
+
+use std::cell::RefCell;
+use std::collections::VecDeque;
+use std::convert::Infallible;
+use std::future::Future;
+use std::pin::pin;
+use std::rc::Rc;
+use std::task::{Context, Poll, Waker};
+
+use brightpix::engine_runner::EngineBuffers;
+use brightpix_firmware::camera::{DataWidth, DcmiSource};
+use brightpix_firmware::device::embedded_io_async::{ErrorType, Read, Write};
+use brightpix_firmware::device::{ConfigSlot, Device, DeviceBuffers, LinkError};
+use brightpix_firmware::engine::{
+    Engine, EngineMemory, LevelFilterState, OpenWindow, SubapertureResult,
+};
+use brightpix_protocol::wire::{
+    decode, encode, Ack, DeviceError, DeviceMessage, FrameFault, FrameReader, Hello, HostMessage,
+    PixelSourceKind, Received, SlopeEntry, Status, UploadPlan, MAX_CHUNK_BYTES, MAX_FRAME_LEN,
+    MAX_PIXEL_BYTES,
+};
+use brightpix_protocol::{
+    Calibration, Camera, Centroid, Config, PixelCount, RegularGrid, Selection, SelectionRule,
+    SubapertureWindow,
+};
+use camera_sim::*;
+
+// --- an in-memory link -----------------------------------------------------------
+
+#[derive(Default)]
+struct LinkState {
+    input: VecDeque<u8>,
+    output: Vec<u8>,
+    closed: bool,
+}
+
+#[derive(Clone)]
+struct Link(Rc<RefCell<LinkState>>);
+
+impl ErrorType for Link {
+    type Error = Infallible;
+}
+
+impl Read for Link {
+    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
+        std::future::poll_fn(|_| {
+            let mut s = self.0.borrow_mut();
+            if !s.input.is_empty() {
+                let n = buf.len().min(s.input.len()).min(64);
+                for b in &mut buf[..n] {
+                    *b = s.input.pop_front().unwrap();
+                }
+                Poll::Ready(Ok(n))
+            } else if s.closed {
+                Poll::Ready(Ok(0))
+            } else {
+                Poll::Pending
+            }
+        })
+        .await
+    }
+}
+
+impl Write for Link {
+    async fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
+        self.0.borrow_mut().output.extend_from_slice(buf);
+        Ok(buf.len())
+    }
+    async fn flush(&mut self) -> Result<(), Infallible> {
+        Ok(())
+    }
+}
+
+impl Link {
+    fn send(&self, message: &HostMessage<'_>) {
+        let mut buf = vec![0u8; MAX_FRAME_LEN];
+        let frame = encode(message, &mut buf).unwrap();
+        self.0.borrow_mut().input.extend(frame.iter());
+    }
+
+    fn replies(&self) -> Vec<Reply> {
+        let output = std::mem::take(&mut self.0.borrow_mut().output);
+        let mut reader = FrameReader::new(vec![0u8; MAX_FRAME_LEN]);
+        let mut out = Vec::new();
+        let mut rest = &output[..];
+        while !rest.is_empty() {
+            let n = reader.push(rest);
+            rest = &rest[n..];
+            while let Some(received) = reader.next_frame() {
+                let Received::Frame(f) = received else {
+                    panic!("a frame too long");
+                };
+                out.push(match decode::<DeviceMessage>(f).unwrap() {
+                    DeviceMessage::HelloReply(h) => Reply::Hello(h.capabilities.pixel_source),
+                    DeviceMessage::Ack(a) => Reply::Ack(a),
+                    DeviceMessage::Error(e) => Reply::Error(e),
+                    DeviceMessage::Status(s) => Reply::Status(s),
+                    DeviceMessage::Slopes { frame, results } => {
+                        Reply::Slopes(frame, results.to_vec())
+                    }
+                    DeviceMessage::FrameDone { frame, count } => Reply::FrameDone(frame, count),
+                });
+            }
+        }
+        out
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Eq)]
+enum Reply {
+    Hello(PixelSourceKind),
+    Ack(Ack),
+    Error(DeviceError),
+    Status(Status),
+    Slopes(u32, Vec<SlopeEntry>),
+    FrameDone(u32, u32),
+}
+
+// --- device storage on the heap ----------------------------------------------------
+
+type SlotVecs = (
+    Vec<SubapertureWindow>,
+    Vec<u16>,
+    Vec<[i32; 2]>,
+    Vec<i32>,
+    Vec<u16>,
+);
+
+struct Storage {
+    slots: [SlotVecs; 2],
+    order: Vec<u16>,
+    level_filters: Vec<LevelFilterState>,
+    open: Vec<OpenWindow>,
+    active: Vec<u16>,
+    free: Vec<u16>,
+    values: Vec<i32>,
+    positions: Vec<u16>,
+    vet: (Vec<u16>, Vec<u16>),
+    results: Vec<SubapertureResult>,
+    rx: Vec<u8>,
+    tx: Vec<u8>,
+    pixels: Vec<u16>,
+}
+
+impl Storage {
+    fn new(subapertures: usize, pixels: usize) -> Self {
+        let window = SubapertureWindow {
+            x: 0,
+            y: 0,
+            width: 0,
+            height: 0,
+        };
+        let slot = || {
+            (
+                vec![window; subapertures],
+                vec![0; subapertures],
+                vec![[0; 2]; subapertures],
+                vec![0; pixels],
+                vec![0; pixels],
+            )
+        };
+        let none = SubapertureResult {
+            index: 0,
+            slope_x: 0,
+            slope_y: 0,
+            flux: 0,
+            valid: false,
+        };
+        Storage {
+            slots: [slot(), slot()],
+            order: vec![0; subapertures],
+            level_filters: vec![LevelFilterState::RESET; subapertures],
+            open: vec![OpenWindow::CLOSED; subapertures],
+            active: vec![0; subapertures],
+            free: vec![0; subapertures],
+            values: vec![0; subapertures * 16],
+            positions: vec![0; subapertures * 16],
+            vet: (vec![0; subapertures], vec![0; subapertures]),
+            results: vec![none; subapertures],
+            rx: vec![0; MAX_FRAME_LEN],
+            tx: vec![0; MAX_FRAME_LEN],
+            pixels: vec![0; MAX_PIXEL_BYTES / 2],
+        }
+    }
+
+    fn buffers(&mut self) -> DeviceBuffers<'_> {
+        let [a, b] = &mut self.slots;
+        fn slot(s: &mut SlotVecs) -> ConfigSlot<'_> {
+            ConfigSlot::new(&mut s.0, &mut s.1, &mut s.2, &mut s.3, &mut s.4)
+        }
+        DeviceBuffers {
+            slots: [slot(a), slot(b)],
+            engine: EngineMemory {
+                order: &mut self.order,
+                level_filters: &mut self.level_filters,
+                open: &mut self.open,
+                active: &mut self.active,
+                free: &mut self.free,
+                values: &mut self.values,
+                positions: &mut self.positions,
+            },
+            order: &mut self.vet.0,
+            scratch: &mut self.vet.1,
+            results: &mut self.results,
+            rx: &mut self.rx,
+            tx: &mut self.tx,
+            pixels: &mut self.pixels,
+        }
+    }
+}
+
+// --- the scenario ----------------------------------------------------------------------
+
+const CAMERA: Camera = Camera {
+    width: 40,
+    height: 24,
+    bit_depth: 12,
+};
+
+fn windows() -> Vec<SubapertureWindow> {
+    RegularGrid {
+        x: 0,
+        y: 0,
+        columns: 5,
+        rows: 3,
+        width: 8,
+        height: 8,
+        pitch_x: 8,
+        pitch_y: 8,
+    }
+    .windows()
+    .collect()
+}
+
+fn config(windows: &[SubapertureWindow]) -> Config<'_> {
+    Config {
+        camera: CAMERA,
+        windows,
+        calibration: Calibration {
+            background: None,
+            gain: None,
+            threshold: None,
+        },
+        selection: Selection {
+            rule: SelectionRule::SubtractNext,
+            count: PixelCount::All(5),
+            level_filter: None,
+        },
+        centroid: Centroid {
+            reference_slopes: None,
+            min_flux: 0,
+        },
+    }
+}
+
+fn entry(r: &SubapertureResult) -> SlopeEntry {
+    SlopeEntry {
+        index: r.index,
+        slope_x: r.slope_x,
+        slope_y: r.slope_y,
+        flux: r.flux,
+        valid: r.valid,
+    }
+}
+
+/// Configures the device, captures `capture` frames from a camera that
+/// sends `frames`; `stall(written)` as in `camera_sim::drive`. Returns
+/// every reply and the source's counters.
+fn capture_session(
+    frames: &[Vec<u16>],
+    capture: u32,
+    stall: impl FnMut(u64) -> usize,
+) -> (Vec<Reply>, brightpix_firmware::camera::CameraStats) {
+    let windows = windows();
+    let config = config(&windows);
+    let link = Link(Rc::new(RefCell::new(LinkState::default())));
+    let sim = SimRing::new(
+        96,
+        Behaviour {
+            late_events: true,
+            speculate_percent: 5,
+            ..Behaviour::default()
+        },
+        3,
+    );
+    let (mut words, mut pixels) = (vec![0u32; 32], vec![0u16; 128]);
+    let source = DcmiSource::new(sim.clone(), DataWidth::Bits12, &mut words, &mut pixels);
+    let mut storage = Storage::new(64, CAMERA.pixel_count());
+    let mut device = Device::new(link.clone(), source, storage.buffers(), "sim-dcmi");
+    link.send(&HostMessage::Hello(Hello::CURRENT));
+    let mut plan = UploadPlan::new(config, 1, MAX_CHUNK_BYTES);
+    let mut scratch = vec![0u8; MAX_CHUNK_BYTES];
+    while let Some(m) = plan.next(&mut scratch) {
+        link.send(&m);
+    }
+    link.send(&HostMessage::Capture { frames: capture });
+
+    let mut stall = stall;
+    let mut rng = Rng::new(17);
+    let mut queued = false;
+    let mut status_asked = false;
+    {
+        let mut run = pin!(device.run());
+        let mut cx = Context::from_waker(Waker::noop());
+        for _ in 0..1_000_000 {
+            match run.as_mut().poll(&mut cx) {
+                Poll::Ready(Err(LinkError::Closed)) => break,
+                Poll::Ready(other) => panic!("device stopped: {other:?}"),
+                Poll::Pending => {}
+            }
+            let running = sim.state.borrow().running;
+            if running {
+                if !queued {
+                    // The capture has started: the camera sends.
+                    for f in frames {
+                        sim.send_frame(DataWidth::Bits12, f);
+                    }
+                    queued = true;
+                }
+                let stalled = stall(sim.written());
+                sim.advance(stalled + rng.range(1, 24));
+            } else if queued && !status_asked {
+                link.send(&HostMessage::StatusRequest);
+                status_asked = true;
+            } else if status_asked {
+                link.0.borrow_mut().closed = true;
+            }
+        }
+    }
+    let stats = device.source().stats();
+    (link.replies(), stats)
+}
+
+fn direct(frames: &[Vec<u16>]) -> Vec<Vec<SlopeEntry>> {
+    let windows = windows();
+    let config = config(&windows);
+    let mut buffers = EngineBuffers::for_config(&config);
+    let mut engine = Engine::new(config, buffers.memory()).unwrap();
+    frames
+        .iter()
+        .map(|f| {
+            let mut out = Vec::new();
+            engine.push(f, &mut |r| out.push(entry(&r))).unwrap();
+            out.sort_by_key(|e| e.index);
+            out
+        })
+        .collect()
+}
+
+fn camera_frames(count: u32) -> Vec<Vec<u16>> {
+    (0..count)
+        .map(|f| frame_pixels(f, CAMERA.pixel_count(), 12))
+        .collect()
+}
+
+/// Slopes per frame that the device finished with `FrameDone`.
+fn done_frames(replies: &[Reply]) -> Vec<(u32, Vec<SlopeEntry>)> {
+    let mut out = Vec::new();
+    for r in replies {
+        if let Reply::FrameDone(frame, count) = r {
+            let mut slopes: Vec<SlopeEntry> = replies
+                .iter()
+                .filter_map(|r| match r {
+                    Reply::Slopes(f, s) if f == frame => Some(s.clone()),
+                    _ => None,
+                })
+                .flatten()
+                .collect();
+            assert_eq!(slopes.len() as u32, *count, "frame {frame}");
+            slopes.sort_by_key(|e| e.index);
+            out.push((*frame, slopes));
+        }
+    }
+    out
+}
+
+fn status(replies: &[Reply]) -> Status {
+    replies
+        .iter()
+        .rev()
+        .find_map(|r| match r {
+            Reply::Status(s) => Some(*s),
+            _ => None,
+        })
+        .expect("a status")
+}
+
+#[test]
+fn capture_streams_slopes_equal_to_a_direct_engine_run() {
+    let frames = camera_frames(8);
+    let expected = direct(&frames);
+    let (replies, stats) = capture_session(&frames, 6, |_| 0);
+    assert_eq!(replies[0], Reply::Hello(PixelSourceKind::Camera));
+    let errors: Vec<_> = replies
+        .iter()
+        .filter(|r| matches!(r, Reply::Error(_)))
+        .collect();
+    assert!(errors.is_empty(), "{errors:?}");
+    let acks: Vec<_> = replies
+        .iter()
+        .filter_map(|r| match r {
+            Reply::Ack(a) => Some(*a),
+            _ => None,
+        })
+        .collect();
+    assert!(acks.contains(&Ack::CaptureStarted { frames: 6 }));
+    assert!(acks.contains(&Ack::CaptureStopped { frames: 6 }));
+    let done = done_frames(&replies);
+    assert_eq!(
+        done.iter().map(|d| d.0).collect::<Vec<_>>(),
+        [0, 1, 2, 3, 4, 5]
+    );
+    for (frame, slopes) in done {
+        assert_eq!(slopes, expected[frame as usize], "frame {frame}");
+    }
+    let status = status(&replies);
+    assert_eq!(status.frames_processed, 6);
+    assert_eq!((status.overruns, status.frames_dropped), (0, 0));
+    assert!(!status.capturing);
+    assert_eq!(stats.overruns, 0);
+}
+
+#[test]
+fn an_overrun_reaches_the_host_as_a_counted_dropped_frame() {
+    let frames = camera_frames(20);
+    let expected = direct(&frames);
+    // Frames are 480 words, the ring 96: the consumer stops looking for
+    // 300 words in the middle of frame 2.
+    let mut stalled = false;
+    let (replies, stats) = capture_session(&frames, 8, |written| {
+        if !stalled && written > 2 * 480 + 100 {
+            stalled = true;
+            300
+        } else {
+            0
+        }
+    });
+    assert_eq!(stats.overruns, 1, "{stats:?}");
+    let done = done_frames(&replies);
+    assert_eq!(done.len(), 8);
+    for (frame, slopes) in &done {
+        assert_eq!(*slopes, expected[*frame as usize], "frame {frame}");
+    }
+    let finished: Vec<u32> = done.iter().map(|d| d.0).collect();
+    assert!(!finished.contains(&2), "{finished:?}");
+    // The device saw the gap: frame 2 reported, the overrun counted.
+    assert!(replies.iter().any(|r| matches!(
+        r,
+        Reply::Error(DeviceError::Frame {
+            frame: 2,
+            fault: FrameFault::Incomplete { .. }
+        }) | Reply::Error(DeviceError::Frame {
+            frame: 2,
+            fault: FrameFault::Gap { .. }
+        })
+    )));
+    let status = status(&replies);
+    assert_eq!(status.overruns, 1, "{status:?}");
+    assert!(status.frames_dropped >= 1);
+    assert_eq!(status.frames_processed, 8);
+}
