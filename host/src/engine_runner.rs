@@ -35,15 +35,20 @@ impl EngineBuffers {
             })
             .max()
             .unwrap_or(0);
-        let entries = count * stride;
+        Self::with_capacity(count, count, count * stride)
+    }
+
+    /// Memory for `subapertures`, `open_windows` open at once and
+    /// `pool_entries` selection entries (see the engine's `memory` module).
+    pub fn with_capacity(subapertures: usize, open_windows: usize, pool_entries: usize) -> Self {
         EngineBuffers {
-            order: vec![0; count],
-            level_filters: vec![LevelFilterState::RESET; count],
-            open: vec![OpenWindow::CLOSED; count],
-            active: vec![0; count],
-            free: vec![0; count],
-            values: vec![0; entries],
-            positions: vec![0; entries],
+            order: vec![0; subapertures],
+            level_filters: vec![LevelFilterState::RESET; subapertures],
+            open: vec![OpenWindow::CLOSED; open_windows],
+            active: vec![0; open_windows],
+            free: vec![0; open_windows],
+            values: vec![0; pool_entries],
+            positions: vec![0; pool_entries],
         }
     }
 

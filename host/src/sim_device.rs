@@ -30,12 +30,13 @@ use std::task::{Context, Poll, Wake, Waker};
 use std::thread::{self, JoinHandle, Thread};
 use std::time::{Duration, Instant};
 
+use crate::engine_runner::EngineBuffers;
 use anyhow::{bail, Context as _};
 use brightpix_firmware::device::embedded_io_async::{self as eio, ErrorType};
 use brightpix_firmware::device::{
     ConfigSlot, Device, DeviceBuffers, LinkOnly, PixelRowsStream, PixelSource,
 };
-use brightpix_firmware::engine::{EngineMemory, LevelFilterState, OpenWindow, SubapertureResult};
+use brightpix_firmware::engine::SubapertureResult;
 use brightpix_protocol::wire::{MAX_FRAME_LEN, MAX_PIXEL_BYTES};
 use brightpix_protocol::SubapertureWindow;
 use serialport::{SerialPort, TTYPort};
@@ -73,16 +74,11 @@ struct SlotVecs {
     gain: Vec<u16>,
 }
 
-/// A device's storage on the heap.
-struct HeapStorage {
+/// A device's storage on the heap: what a board keeps in statics, for the
+/// in-process device and for tests of the device loop.
+pub struct HeapDeviceStorage {
     slots: [SlotVecs; 2],
-    order: Vec<u16>,
-    level_filters: Vec<LevelFilterState>,
-    open: Vec<OpenWindow>,
-    active: Vec<u16>,
-    free: Vec<u16>,
-    values: Vec<i32>,
-    positions: Vec<u16>,
+    engine: EngineBuffers,
     vet_order: Vec<u16>,
     vet_scratch: Vec<u16>,
     results: Vec<SubapertureResult>,
@@ -91,8 +87,8 @@ struct HeapStorage {
     pixels: Vec<u16>,
 }
 
-impl HeapStorage {
-    fn new(z: SimSizes) -> Self {
+impl HeapDeviceStorage {
+    pub fn new(z: SimSizes) -> Self {
         let slot = || SlotVecs {
             windows: vec![
                 SubapertureWindow {
@@ -115,15 +111,9 @@ impl HeapStorage {
             flux: 0,
             valid: false,
         };
-        HeapStorage {
+        HeapDeviceStorage {
             slots: [slot(), slot()],
-            order: vec![0; z.subapertures],
-            level_filters: vec![LevelFilterState::RESET; z.subapertures],
-            open: vec![OpenWindow::CLOSED; z.open_windows],
-            active: vec![0; z.open_windows],
-            free: vec![0; z.open_windows],
-            values: vec![0; z.pool_entries],
-            positions: vec![0; z.pool_entries],
+            engine: EngineBuffers::with_capacity(z.subapertures, z.open_windows, z.pool_entries),
             vet_order: vec![0; z.subapertures],
             vet_scratch: vec![0; z.subapertures],
             results: vec![none; z.results_per_row],
@@ -133,7 +123,8 @@ impl HeapStorage {
         }
     }
 
-    fn buffers(&mut self) -> DeviceBuffers<'_> {
+    /// The buffers for `Device::new`.
+    pub fn buffers(&mut self) -> DeviceBuffers<'_> {
         fn slot(s: &mut SlotVecs) -> ConfigSlot<'_> {
             ConfigSlot::new(
                 &mut s.windows,
@@ -146,15 +137,7 @@ impl HeapStorage {
         let [a, b] = &mut self.slots;
         DeviceBuffers {
             slots: [slot(a), slot(b)],
-            engine: EngineMemory {
-                order: &mut self.order,
-                level_filters: &mut self.level_filters,
-                open: &mut self.open,
-                active: &mut self.active,
-                free: &mut self.free,
-                values: &mut self.values,
-                positions: &mut self.positions,
-            },
+            engine: self.engine.memory(),
             order: &mut self.vet_order,
             scratch: &mut self.vet_scratch,
             results: &mut self.results,
@@ -457,7 +440,7 @@ impl InProcessDevice {
         };
         let (sizes, board) = (options.sizes, options.board);
         threads.push(spawn("brightpix-sim-device", move || {
-            let mut storage = HeapStorage::new(sizes);
+            let mut storage = HeapDeviceStorage::new(sizes);
             match fifo_inbox {
                 None => run_device(Device::new(link, LinkOnly, storage.buffers(), board)),
                 Some(inbox) => {

@@ -13,16 +13,14 @@ use std::rc::Rc;
 use std::task::{Context, Poll, Waker};
 
 use brightpix::engine_runner::EngineBuffers;
+use brightpix::sim_device::{HeapDeviceStorage, SimSizes};
 use brightpix_firmware::camera::{DataWidth, DcmiSource};
 use brightpix_firmware::device::embedded_io_async::{ErrorType, Read, Write};
-use brightpix_firmware::device::{ConfigSlot, Device, DeviceBuffers, LinkError};
-use brightpix_firmware::engine::{
-    Engine, EngineMemory, LevelFilterState, OpenWindow, SubapertureResult,
-};
+use brightpix_firmware::device::{Device, LinkError};
+use brightpix_firmware::engine::{Engine, SubapertureResult};
 use brightpix_protocol::wire::{
     decode, encode, Ack, DeviceError, DeviceMessage, FrameFault, FrameReader, Hello, HostMessage,
     PixelSourceKind, Received, SlopeEntry, Status, UploadPlan, MAX_CHUNK_BYTES, MAX_FRAME_LEN,
-    MAX_PIXEL_BYTES,
 };
 use brightpix_protocol::{
     Calibration, Camera, Centroid, Config, PixelCount, RegularGrid, Selection, SelectionRule,
@@ -123,95 +121,15 @@ enum Reply {
 
 // --- device storage on the heap ----------------------------------------------------
 
-type SlotVecs = (
-    Vec<SubapertureWindow>,
-    Vec<u16>,
-    Vec<[i32; 2]>,
-    Vec<i32>,
-    Vec<u16>,
-);
-
-struct Storage {
-    slots: [SlotVecs; 2],
-    order: Vec<u16>,
-    level_filters: Vec<LevelFilterState>,
-    open: Vec<OpenWindow>,
-    active: Vec<u16>,
-    free: Vec<u16>,
-    values: Vec<i32>,
-    positions: Vec<u16>,
-    vet: (Vec<u16>, Vec<u16>),
-    results: Vec<SubapertureResult>,
-    rx: Vec<u8>,
-    tx: Vec<u8>,
-    pixels: Vec<u16>,
-}
-
-impl Storage {
-    fn new(subapertures: usize, pixels: usize) -> Self {
-        let window = SubapertureWindow {
-            x: 0,
-            y: 0,
-            width: 0,
-            height: 0,
-        };
-        let slot = || {
-            (
-                vec![window; subapertures],
-                vec![0; subapertures],
-                vec![[0; 2]; subapertures],
-                vec![0; pixels],
-                vec![0; pixels],
-            )
-        };
-        let none = SubapertureResult {
-            index: 0,
-            slope_x: 0,
-            slope_y: 0,
-            flux: 0,
-            valid: false,
-        };
-        Storage {
-            slots: [slot(), slot()],
-            order: vec![0; subapertures],
-            level_filters: vec![LevelFilterState::RESET; subapertures],
-            open: vec![OpenWindow::CLOSED; subapertures],
-            active: vec![0; subapertures],
-            free: vec![0; subapertures],
-            values: vec![0; subapertures * 16],
-            positions: vec![0; subapertures * 16],
-            vet: (vec![0; subapertures], vec![0; subapertures]),
-            results: vec![none; subapertures],
-            rx: vec![0; MAX_FRAME_LEN],
-            tx: vec![0; MAX_FRAME_LEN],
-            pixels: vec![0; MAX_PIXEL_BYTES / 2],
-        }
-    }
-
-    fn buffers(&mut self) -> DeviceBuffers<'_> {
-        let [a, b] = &mut self.slots;
-        fn slot(s: &mut SlotVecs) -> ConfigSlot<'_> {
-            ConfigSlot::new(&mut s.0, &mut s.1, &mut s.2, &mut s.3, &mut s.4)
-        }
-        DeviceBuffers {
-            slots: [slot(a), slot(b)],
-            engine: EngineMemory {
-                order: &mut self.order,
-                level_filters: &mut self.level_filters,
-                open: &mut self.open,
-                active: &mut self.active,
-                free: &mut self.free,
-                values: &mut self.values,
-                positions: &mut self.positions,
-            },
-            order: &mut self.vet.0,
-            scratch: &mut self.vet.1,
-            results: &mut self.results,
-            rx: &mut self.rx,
-            tx: &mut self.tx,
-            pixels: &mut self.pixels,
-        }
-    }
+/// The host's heap-backed device storage, sized for these tests.
+fn storage(subapertures: usize, pixels: usize) -> HeapDeviceStorage {
+    HeapDeviceStorage::new(SimSizes {
+        subapertures,
+        map_pixels: pixels,
+        open_windows: subapertures,
+        pool_entries: subapertures * 16,
+        results_per_row: subapertures,
+    })
 }
 
 // --- the scenario ----------------------------------------------------------------------
@@ -290,7 +208,7 @@ fn capture_session(
     );
     let (mut words, mut pixels) = (vec![0u32; 32], vec![0u16; 128]);
     let source = DcmiSource::new(sim.clone(), DataWidth::Bits12, &mut words, &mut pixels);
-    let mut storage = Storage::new(64, CAMERA.pixel_count());
+    let mut storage = storage(64, CAMERA.pixel_count());
     let mut device = Device::new(link.clone(), source, storage.buffers(), "sim-dcmi");
     link.send(&HostMessage::Hello(Hello::CURRENT));
     let mut plan = UploadPlan::new(config, 1, MAX_CHUNK_BYTES);

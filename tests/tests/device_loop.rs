@@ -12,12 +12,9 @@ use std::task::Poll;
 use brightpix::engine_runner::EngineBuffers;
 use brightpix_firmware::device::embedded_io_async::{ErrorType, Read, Write};
 use brightpix_firmware::device::{
-    CameraRefused, ConfigSlot, Device, DeviceBuffers, LinkError, LinkOnly, PixelRowsStream,
-    PixelRun, PixelSource,
+    CameraRefused, Device, LinkError, LinkOnly, PixelRowsStream, PixelRun, PixelSource,
 };
-use brightpix_firmware::engine::{
-    Engine, EngineMemory, LevelFilterState, OpenWindow, SubapertureResult,
-};
+use brightpix_firmware::engine::{Engine, SubapertureResult};
 use brightpix_protocol::wire::tables::write_table;
 use brightpix_protocol::wire::{
     decode, encode, Ack, CapacityKind, ConfigFault, ConfigHeader, DeviceError, DeviceMessage,
@@ -82,123 +79,19 @@ impl Write for Link {
     }
 }
 
-// --- device storage on the heap ----------------------------------------------
+// --- device storage on the heap (the host's, as the in-process device uses) ---
 
-#[derive(Clone, Copy)]
-struct Sizes {
-    subapertures: usize,
-    pixels: usize,
-    open: usize,
-    entries: usize,
-    results: usize,
-}
+use brightpix::sim_device::{HeapDeviceStorage, SimSizes};
+
+type Sizes = SimSizes;
 
 const SIZES: Sizes = Sizes {
     subapertures: 256,
-    pixels: 64 * 64,
-    open: 64,
-    entries: 64 * 40,
-    results: 64,
+    map_pixels: 64 * 64,
+    open_windows: 64,
+    pool_entries: 64 * 40,
+    results_per_row: 64,
 };
-
-struct SlotVecs {
-    windows: Vec<SubapertureWindow>,
-    counts: Vec<u16>,
-    references: Vec<[i32; 2]>,
-    background: Vec<i32>,
-    gain: Vec<u16>,
-}
-
-struct HeapStorage {
-    slots: [SlotVecs; 2],
-    order: Vec<u16>,
-    level_filters: Vec<LevelFilterState>,
-    open: Vec<OpenWindow>,
-    active: Vec<u16>,
-    free: Vec<u16>,
-    values: Vec<i32>,
-    positions: Vec<u16>,
-    vet_order: Vec<u16>,
-    vet_scratch: Vec<u16>,
-    results: Vec<SubapertureResult>,
-    rx: Vec<u8>,
-    tx: Vec<u8>,
-    pixels: Vec<u16>,
-}
-
-impl HeapStorage {
-    fn new(z: Sizes) -> Self {
-        let slot = || SlotVecs {
-            windows: vec![
-                SubapertureWindow {
-                    x: 0,
-                    y: 0,
-                    width: 0,
-                    height: 0
-                };
-                z.subapertures
-            ],
-            counts: vec![0; z.subapertures],
-            references: vec![[0; 2]; z.subapertures],
-            background: vec![0; z.pixels],
-            gain: vec![0; z.pixels],
-        };
-        let none = SubapertureResult {
-            index: 0,
-            slope_x: 0,
-            slope_y: 0,
-            flux: 0,
-            valid: false,
-        };
-        HeapStorage {
-            slots: [slot(), slot()],
-            order: vec![0; z.subapertures],
-            level_filters: vec![LevelFilterState::RESET; z.subapertures],
-            open: vec![OpenWindow::CLOSED; z.open],
-            active: vec![0; z.open],
-            free: vec![0; z.open],
-            values: vec![0; z.entries],
-            positions: vec![0; z.entries],
-            vet_order: vec![0; z.subapertures],
-            vet_scratch: vec![0; z.subapertures],
-            results: vec![none; z.results],
-            rx: vec![0; MAX_FRAME_LEN],
-            tx: vec![0; MAX_FRAME_LEN],
-            pixels: vec![0; MAX_PIXEL_BYTES / 2],
-        }
-    }
-
-    fn buffers(&mut self) -> DeviceBuffers<'_> {
-        fn slot(s: &mut SlotVecs) -> ConfigSlot<'_> {
-            ConfigSlot::new(
-                &mut s.windows,
-                &mut s.counts,
-                &mut s.references,
-                &mut s.background,
-                &mut s.gain,
-            )
-        }
-        let [a, b] = &mut self.slots;
-        DeviceBuffers {
-            slots: [slot(a), slot(b)],
-            engine: EngineMemory {
-                order: &mut self.order,
-                level_filters: &mut self.level_filters,
-                open: &mut self.open,
-                active: &mut self.active,
-                free: &mut self.free,
-                values: &mut self.values,
-                positions: &mut self.positions,
-            },
-            order: &mut self.vet_order,
-            scratch: &mut self.vet_scratch,
-            results: &mut self.results,
-            rx: &mut self.rx,
-            tx: &mut self.tx,
-            pixels: &mut self.pixels,
-        }
-    }
-}
 
 // --- the host side -------------------------------------------------------------
 
@@ -319,7 +212,7 @@ impl Host {
     }
 }
 
-fn setup(sizes: Sizes, max_read: usize) -> (HeapStorage, Host, Link) {
+fn setup(sizes: Sizes, max_read: usize) -> (HeapDeviceStorage, Host, Link) {
     let state = Rc::new(RefCell::new(LinkState {
         closed: true,
         max_read,
@@ -329,7 +222,7 @@ fn setup(sizes: Sizes, max_read: usize) -> (HeapStorage, Host, Link) {
         link: state.clone(),
         reader: FrameReader::new(vec![0u8; MAX_FRAME_LEN]),
     };
-    (HeapStorage::new(sizes), host, Link(state))
+    (HeapDeviceStorage::new(sizes), host, Link(state))
 }
 
 /// Runs the device until it has handled all input.
@@ -629,9 +522,9 @@ fn handshake_refuses_until_matching_hello() {
         ]
     );
     let caps = device.capabilities();
-    assert_eq!(caps.max_camera_pixels, SIZES.pixels as u32);
-    assert_eq!(caps.max_open_windows, SIZES.open as u32);
-    assert_eq!(caps.max_results_per_row, SIZES.results as u32);
+    assert_eq!(caps.max_camera_pixels, SIZES.map_pixels as u32);
+    assert_eq!(caps.max_open_windows, SIZES.open_windows as u32);
+    assert_eq!(caps.max_results_per_row, SIZES.results_per_row as u32);
     assert_eq!(caps.max_frame_bytes, MAX_FRAME_LEN as u32);
 }
 
@@ -844,7 +737,7 @@ fn failed_uploads_leave_the_previous_configuration_running() {
     );
 
     // A valid configuration that does not fit the engine's memory: 80 windows
-    // open at once (SIZES.open is 64).
+    // open at once (SIZES.open_windows is 64).
     let wide = Owned {
         camera: Camera {
             width: 160,
@@ -885,7 +778,7 @@ fn failed_uploads_leave_the_previous_configuration_running() {
         Some(DeviceError::Capacity {
             what: CapacityKind::CameraPixels,
             needed: 1024 * 1024,
-            available: SIZES.pixels as u32,
+            available: SIZES.map_pixels as u32,
         }),
     );
 
@@ -1180,7 +1073,7 @@ fn results_per_row_must_fit_the_queue() {
     let a = config_a(); // 6 windows end in each row of windows
     let (mut storage, mut host, link) = setup(
         Sizes {
-            results: 5,
+            results_per_row: 5,
             ..SIZES
         },
         128,
@@ -1394,10 +1287,10 @@ fn sizes_for(config: &Config<'_>) -> Sizes {
     let n = config.windows.len();
     Sizes {
         subapertures: n,
-        pixels: config.camera.pixel_count(),
-        open: n,
-        entries: n * (65 + 16 + 1),
-        results: n,
+        map_pixels: config.camera.pixel_count(),
+        open_windows: n,
+        pool_entries: n * (65 + 16 + 1),
+        results_per_row: n,
     }
 }
 
