@@ -1,58 +1,12 @@
 //! Shared helpers for the cross-crate tests: random configurations and
 //! frames for the differential tests (engine against reference).
 
-use brightpix_protocol::{
-    Calibration, Camera, Centroid, Config, LevelFilter, PixelCount, Selection, SelectionRule,
-    SubapertureWindow,
-};
+pub use brightpix::config_file::{PixelCounts, ProcessingConfig};
+use brightpix_protocol::{Camera, LevelFilter, SelectionRule, SubapertureWindow};
 use proptest::prelude::*;
 
-/// A configuration with owned maps.
-#[derive(Clone, Debug)]
-pub struct Case {
-    pub camera: Camera,
-    pub windows: Vec<SubapertureWindow>,
-    pub background: Option<Vec<i32>>,
-    pub gain: Option<Vec<u16>>,
-    pub threshold: Option<i32>,
-    pub rule: SelectionRule,
-    pub count: Count,
-    pub level_filter: Option<LevelFilter>,
-    pub reference_slopes: Option<Vec<[i32; 2]>>,
-    pub min_flux: i64,
-}
-
-#[derive(Clone, Debug)]
-pub enum Count {
-    All(u16),
-    PerSubaperture(Vec<u16>),
-}
-
-impl Case {
-    pub fn config(&self) -> Config<'_> {
-        Config {
-            camera: self.camera,
-            windows: &self.windows,
-            calibration: Calibration {
-                background: self.background.as_deref(),
-                gain: self.gain.as_deref(),
-                threshold: self.threshold,
-            },
-            selection: Selection {
-                rule: self.rule,
-                count: match &self.count {
-                    Count::All(n) => PixelCount::All(*n),
-                    Count::PerSubaperture(list) => PixelCount::PerSubaperture(list),
-                },
-                level_filter: self.level_filter,
-            },
-            centroid: Centroid {
-                reference_slopes: self.reference_slopes.as_deref(),
-                min_flux: self.min_flux,
-            },
-        }
-    }
-}
+/// A random configuration: the host's owned configuration type.
+pub type Case = ProcessingConfig;
 
 /// Any of the four rules.
 pub fn rule() -> impl Strategy<Value = SelectionRule> {
@@ -187,10 +141,10 @@ pub fn case() -> impl Strategy<Value = (Case, Vec<Vec<u16>>, Vec<usize>)> {
                     let level_filter = level_filter.filter(|_| rule.subtracts());
                     let n = if per_subaperture {
                         prop::collection::vec(1u16..=50, count)
-                            .prop_map(Count::PerSubaperture)
+                            .prop_map(PixelCounts::PerSubaperture)
                             .boxed()
                     } else {
-                        (1u16..=50).prop_map(Count::All).boxed()
+                        (1u16..=50).prop_map(PixelCounts::All).boxed()
                     };
                     let references = prop::option::of(prop::collection::vec(
                         [-(1i32 << 20)..=(1 << 20), -(1i32 << 20)..=(1 << 20)],
@@ -208,11 +162,12 @@ pub fn case() -> impl Strategy<Value = (Case, Vec<Vec<u16>>, Vec<usize>)> {
                                     Case {
                                         camera,
                                         windows: windows.clone(),
+                                        grid: None,
                                         background: background.clone(),
                                         gain: gain.clone(),
                                         threshold,
                                         rule,
-                                        count,
+                                        pixels: count,
                                         level_filter,
                                         reference_slopes,
                                         min_flux,

@@ -1310,7 +1310,7 @@ proptest! {
         chunk in 8usize..=960,
         max_read in 1usize..=300,
     ) {
-        let config = case.config();
+        let config = case.view();
         let expected = direct(config, &frames);
         let (mut storage, mut host, link) = setup(sizes_for(&config), max_read);
         let mut device = Device::new(link, LinkOnly, storage.buffers(), "prop");

@@ -24,7 +24,7 @@ proptest! {
 
     #[test]
     fn engine_matches_reference((case, frames, chunks) in case()) {
-        let config = case.config();
+        let config = case.view();
         let mut reference = Reference::new(&config).expect("generated configurations are valid");
         let mut engine = HostEngine::new(config).expect("generated configurations are valid");
         let mut chunk_lengths = chunks.iter().copied().cycle();
@@ -67,7 +67,7 @@ mod invalid_pixel {
             (case, frames, chunks) in case().prop_filter("needs headroom above max", |(c, _, _)| c.camera.bit_depth < 16),
             bad_at in any::<prop::sample::Index>(),
         ) {
-            let config = case.config();
+            let config = case.view();
             let mut reference = Reference::new(&config).unwrap();
             let mut buffers = EngineBuffers::for_config(&config);
             let mut engine = Engine::new(config, buffers.memory()).unwrap();

@@ -35,9 +35,9 @@ fn oracle(case: &Case, frame: &[u16], index: usize) -> (Option<(f64, f64)>, i64)
             pixels.push((calibrated(case, frame, pixel), i, j));
         }
     }
-    let n = match &case.count {
-        brightpix_tests::Count::All(n) => *n as usize,
-        brightpix_tests::Count::PerSubaperture(list) => list[index] as usize,
+    let n = match &case.pixels {
+        brightpix_tests::PixelCounts::All(n) => *n as usize,
+        brightpix_tests::PixelCounts::PerSubaperture(list) => list[index] as usize,
     };
     let mut sorted: Vec<i64> = pixels.iter().map(|p| p.0).collect();
     sorted.sort_unstable_by(|a, b| b.cmp(a));
@@ -98,7 +98,7 @@ proptest! {
     #[test]
     fn fixed_point_slopes_are_within_the_quantisation_bound((mut case, frames, _) in case()) {
         case.level_filter = None;
-        let config = case.config();
+        let config = case.view();
         let mut engine = HostEngine::new(config).unwrap();
         let results = engine.process(frames.iter().map(Vec::as_slice), usize::MAX).unwrap();
         for (frame, results) in frames.iter().zip(&results) {
