@@ -181,3 +181,21 @@ pub fn case() -> impl Strategy<Value = (Case, Vec<Vec<u16>>, Vec<usize>)> {
             )
     })
 }
+
+/// The engine itself on whole frames, results in emission order: what a
+/// device or a camera source must reproduce.
+pub fn direct(
+    config: brightpix_protocol::Config<'_>,
+    frames: &[Vec<u16>],
+) -> Vec<Vec<brightpix_firmware::engine::SubapertureResult>> {
+    let mut buffers = brightpix::engine_runner::EngineBuffers::for_config(&config);
+    let mut engine = brightpix_firmware::engine::Engine::new(config, buffers.memory()).unwrap();
+    frames
+        .iter()
+        .map(|f| {
+            let mut out = Vec::new();
+            engine.push(f, &mut |r| out.push(r)).unwrap();
+            out
+        })
+        .collect()
+}

@@ -12,6 +12,7 @@ use brightpix_protocol::{
     Calibration, Camera, Centroid, Config, LevelFilter, PixelCount, RegularGrid, Selection,
     SelectionRule, SubapertureWindow,
 };
+use brightpix_tests::direct;
 use camera_sim::*;
 
 const WIDTHS: [DataWidth; 4] = [
@@ -82,20 +83,6 @@ fn frames(camera: Camera, count: u32, seed: u64) -> Vec<Vec<u16>> {
                 }
             }
             f
-        })
-        .collect()
-}
-
-/// The engine on whole frames.
-fn direct(config: Config<'_>, frames: &[Vec<u16>]) -> Vec<Vec<SubapertureResult>> {
-    let mut buffers = EngineBuffers::for_config(&config);
-    let mut engine = Engine::new(config, buffers.memory()).unwrap();
-    frames
-        .iter()
-        .map(|f| {
-            let mut out = Vec::new();
-            engine.push(f, &mut |r| out.push(r)).unwrap();
-            out
         })
         .collect()
 }

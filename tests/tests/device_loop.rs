@@ -9,12 +9,11 @@ use std::convert::Infallible;
 use std::rc::Rc;
 use std::task::Poll;
 
-use brightpix::engine_runner::EngineBuffers;
 use brightpix_firmware::device::embedded_io_async::{ErrorType, Read, Write};
 use brightpix_firmware::device::{
     CameraRefused, Device, LinkError, LinkOnly, PixelRowsStream, PixelRun, PixelSource,
 };
-use brightpix_firmware::engine::{Engine, SubapertureResult};
+use brightpix_firmware::engine::SubapertureResult;
 use brightpix_protocol::wire::tables::write_table;
 use brightpix_protocol::wire::{
     decode, encode, Ack, CapacityKind, ConfigFault, ConfigHeader, DeviceError, DeviceMessage,
@@ -26,7 +25,7 @@ use brightpix_protocol::{
     Calibration, Camera, Centroid, Config, ConfigError, LevelFilter, MemoryKind, PixelCount,
     RegularGrid, Selection, SelectionRule, SubapertureWindow,
 };
-use brightpix_tests::case;
+use brightpix_tests::{case, direct};
 use embassy_futures::block_on;
 use proptest::prelude::*;
 
@@ -371,20 +370,6 @@ fn frames(camera: Camera, count: usize, seed: u64) -> Vec<Vec<u16>> {
                 }
             }
             f
-        })
-        .collect()
-}
-
-/// The engine itself, frame by frame, results in emission order.
-fn direct(config: Config<'_>, frames: &[Vec<u16>]) -> Vec<Vec<SubapertureResult>> {
-    let mut buffers = EngineBuffers::for_config(&config);
-    let mut engine = Engine::new(config, buffers.memory()).unwrap();
-    frames
-        .iter()
-        .map(|f| {
-            let mut out = Vec::new();
-            engine.push(f, &mut |r| out.push(r)).unwrap();
-            out
         })
         .collect()
 }
