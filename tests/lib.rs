@@ -199,3 +199,62 @@ pub fn direct(
         })
         .collect()
 }
+
+/// A device link in memory: what the host sends is queued for the device's
+/// reads, what the device writes is collected for the test.
+pub mod memory_link {
+    use brightpix_firmware::device::embedded_io_async::{ErrorType, Read, Write};
+    use std::cell::RefCell;
+    use std::collections::VecDeque;
+    use std::convert::Infallible;
+    use std::rc::Rc;
+    use std::task::Poll;
+
+    #[derive(Default)]
+    pub struct LinkState {
+        pub input: VecDeque<u8>,
+        pub output: Vec<u8>,
+        /// When the input is empty: end of stream (read returns 0) or wait.
+        pub closed: bool,
+        /// Largest read (at least 1), to exercise frames split across reads.
+        pub max_read: usize,
+    }
+
+    /// The device's end of the link.
+    #[derive(Clone)]
+    pub struct MemoryLink(pub Rc<RefCell<LinkState>>);
+
+    impl ErrorType for MemoryLink {
+        type Error = Infallible;
+    }
+
+    impl Read for MemoryLink {
+        async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
+            std::future::poll_fn(|_| {
+                let mut s = self.0.borrow_mut();
+                if !s.input.is_empty() {
+                    let n = buf.len().min(s.input.len()).min(s.max_read.max(1));
+                    for b in &mut buf[..n] {
+                        *b = s.input.pop_front().unwrap();
+                    }
+                    Poll::Ready(Ok(n))
+                } else if s.closed {
+                    Poll::Ready(Ok(0))
+                } else {
+                    Poll::Pending
+                }
+            })
+            .await
+        }
+    }
+
+    impl Write for MemoryLink {
+        async fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
+            self.0.borrow_mut().output.extend_from_slice(buf);
+            Ok(buf.len())
+        }
+        async fn flush(&mut self) -> Result<(), Infallible> {
+            Ok(())
+        }
+    }
+}

@@ -5,8 +5,6 @@
 mod camera_sim;
 
 use std::cell::RefCell;
-use std::collections::VecDeque;
-use std::convert::Infallible;
 use std::future::Future;
 use std::pin::pin;
 use std::rc::Rc;
@@ -15,7 +13,6 @@ use std::task::{Context, Poll, Waker};
 use brightpix::engine_runner::EngineBuffers;
 use brightpix::sim_device::{HeapDeviceStorage, SimSizes};
 use brightpix_firmware::camera::{DataWidth, DcmiSource};
-use brightpix_firmware::device::embedded_io_async::{ErrorType, Read, Write};
 use brightpix_firmware::device::{Device, LinkError};
 use brightpix_firmware::engine::{Engine, SubapertureResult};
 use brightpix_protocol::wire::{
@@ -30,51 +27,15 @@ use camera_sim::*;
 
 // --- an in-memory link -----------------------------------------------------------
 
-#[derive(Default)]
-struct LinkState {
-    input: VecDeque<u8>,
-    output: Vec<u8>,
-    closed: bool,
+use brightpix_tests::memory_link::{LinkState, MemoryLink as Link};
+
+/// The host's side of the link.
+trait HostSide {
+    fn send(&self, message: &HostMessage<'_>);
+    fn replies(&self) -> Vec<Reply>;
 }
 
-#[derive(Clone)]
-struct Link(Rc<RefCell<LinkState>>);
-
-impl ErrorType for Link {
-    type Error = Infallible;
-}
-
-impl Read for Link {
-    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
-        std::future::poll_fn(|_| {
-            let mut s = self.0.borrow_mut();
-            if !s.input.is_empty() {
-                let n = buf.len().min(s.input.len()).min(64);
-                for b in &mut buf[..n] {
-                    *b = s.input.pop_front().unwrap();
-                }
-                Poll::Ready(Ok(n))
-            } else if s.closed {
-                Poll::Ready(Ok(0))
-            } else {
-                Poll::Pending
-            }
-        })
-        .await
-    }
-}
-
-impl Write for Link {
-    async fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
-        self.0.borrow_mut().output.extend_from_slice(buf);
-        Ok(buf.len())
-    }
-    async fn flush(&mut self) -> Result<(), Infallible> {
-        Ok(())
-    }
-}
-
-impl Link {
+impl HostSide for Link {
     fn send(&self, message: &HostMessage<'_>) {
         let mut buf = vec![0u8; MAX_FRAME_LEN];
         let frame = encode(message, &mut buf).unwrap();
@@ -196,7 +157,10 @@ fn capture_session(
 ) -> (Vec<Reply>, brightpix_firmware::camera::CameraStats) {
     let windows = windows();
     let config = config(&windows);
-    let link = Link(Rc::new(RefCell::new(LinkState::default())));
+    let link = Link(Rc::new(RefCell::new(LinkState {
+        max_read: 64,
+        ..LinkState::default()
+    })));
     let sim = SimRing::new(
         96,
         Behaviour {

@@ -9,7 +9,7 @@ use std::convert::Infallible;
 use std::rc::Rc;
 use std::task::Poll;
 
-use brightpix_firmware::device::embedded_io_async::{ErrorType, Read, Write};
+use brightpix_firmware::device::embedded_io_async::{ErrorType, Read};
 use brightpix_firmware::device::{
     CameraRefused, Device, LinkError, LinkOnly, PixelRowsStream, PixelRun, PixelSource,
 };
@@ -31,52 +31,7 @@ use proptest::prelude::*;
 
 // --- the in-memory link ------------------------------------------------------
 
-#[derive(Default)]
-struct LinkState {
-    input: VecDeque<u8>,
-    output: Vec<u8>,
-    /// When the input is empty: end of stream (read returns 0) or wait.
-    closed: bool,
-    /// Largest read, to exercise frames split across reads.
-    max_read: usize,
-}
-
-#[derive(Clone)]
-struct Link(Rc<RefCell<LinkState>>);
-
-impl ErrorType for Link {
-    type Error = Infallible;
-}
-
-impl Read for Link {
-    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
-        std::future::poll_fn(|_| {
-            let mut s = self.0.borrow_mut();
-            if !s.input.is_empty() {
-                let n = buf.len().min(s.input.len()).min(s.max_read.max(1));
-                for b in &mut buf[..n] {
-                    *b = s.input.pop_front().unwrap();
-                }
-                Poll::Ready(Ok(n))
-            } else if s.closed {
-                Poll::Ready(Ok(0))
-            } else {
-                Poll::Pending
-            }
-        })
-        .await
-    }
-}
-
-impl Write for Link {
-    async fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
-        self.0.borrow_mut().output.extend_from_slice(buf);
-        Ok(buf.len())
-    }
-    async fn flush(&mut self) -> Result<(), Infallible> {
-        Ok(())
-    }
-}
+use brightpix_tests::memory_link::{LinkState, MemoryLink as Link};
 
 // --- device storage on the heap (the host's, as the in-process device uses) ---
 
