@@ -455,33 +455,3 @@ fn sodium_spot_is_elongated_along_x() {
         }
     }
 }
-
-/// Time per spot (run with `cargo test -p brightpix --release timing --
-/// --ignored --nocapture`).
-#[test]
-#[ignore = "prints time per spot, asserts nothing: machines are noisy, so timings are not tests; run by hand as the doc comment says"]
-fn timing() {
-    for (name, p) in [
-        ("ngs", SimulationParams::default()),
-        ("rayleigh 1500 m", SimulationParams::canary_rayleigh(1500.0)),
-        ("sodium 14 km", SimulationParams::sodium(14e3)),
-    ] {
-        let sim = Simulator::new(p).unwrap();
-        let mut ws = sim.workspace();
-        let n = 500;
-        let t = std::time::Instant::now();
-        for i in 0..n {
-            std::hint::black_box(sim.frame_into(&mut ws, i, 1, [0.0, 0.0]));
-        }
-        let one = t.elapsed().as_secs_f64() / n as f64;
-        let t = std::time::Instant::now();
-        std::hint::black_box(sim.frames(1, 0, 4 * n as usize));
-        let par = t.elapsed().as_secs_f64() / (4 * n) as f64;
-        eprintln!(
-            "{name}: {:.3} ms/spot on one core, {:.3} ms/spot with rayon ({} threads)",
-            one * 1e3,
-            par * 1e3,
-            rayon::current_num_threads()
-        );
-    }
-}
