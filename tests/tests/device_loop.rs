@@ -22,10 +22,10 @@ use brightpix_protocol::wire::{
     MAX_PIXEL_BYTES, PROTOCOL_VERSION, SCHEMA_HASH, SLOPES_PER_MESSAGE,
 };
 use brightpix_protocol::{
-    Calibration, Camera, Centroid, Config, ConfigError, LevelFilter, MemoryKind, PixelCount,
-    RegularGrid, Selection, SelectionRule, SubapertureWindow,
+    Camera, Config, ConfigError, LevelFilter, MemoryKind, RegularGrid, SelectionRule,
+    SubapertureWindow,
 };
-use brightpix_tests::{case, direct};
+use brightpix_tests::{case, direct, PixelCounts, ProcessingConfig};
 use embassy_futures::block_on;
 use proptest::prelude::*;
 
@@ -189,45 +189,8 @@ fn run<C: PixelSource>(device: &mut Device<'_, Link, C>) {
 
 // --- configurations and frames ---------------------------------------------------
 
-struct Owned {
-    camera: Camera,
-    windows: Vec<SubapertureWindow>,
-    counts: Option<Vec<u16>>,
-    n: u16,
-    background: Option<Vec<i32>>,
-    gain: Option<Vec<u16>>,
-    threshold: Option<i32>,
-    rule: SelectionRule,
-    level_filter: Option<LevelFilter>,
-    references: Option<Vec<[i32; 2]>>,
-    min_flux: i64,
-}
-
-impl Owned {
-    fn config(&self) -> Config<'_> {
-        Config {
-            camera: self.camera,
-            windows: &self.windows,
-            calibration: Calibration {
-                background: self.background.as_deref(),
-                gain: self.gain.as_deref(),
-                threshold: self.threshold,
-            },
-            selection: Selection {
-                rule: self.rule,
-                count: match &self.counts {
-                    Some(list) => PixelCount::PerSubaperture(list),
-                    None => PixelCount::All(self.n),
-                },
-                level_filter: self.level_filter,
-            },
-            centroid: Centroid {
-                reference_slopes: self.references.as_deref(),
-                min_flux: self.min_flux,
-            },
-        }
-    }
-}
+/// The configurations here are the host's owned configuration type.
+type Owned = ProcessingConfig;
 
 fn grid(columns: u16, rows: u16, width: u16, height: u16) -> Vec<SubapertureWindow> {
     RegularGrid {
@@ -253,17 +216,8 @@ const CAMERA: Camera = Camera {
 /// Plain: subtract-next, N = 5, 6 x 4 windows of 8 x 8.
 fn config_a() -> Owned {
     Owned {
-        camera: CAMERA,
-        windows: grid(6, 4, 8, 8),
-        counts: None,
-        n: 5,
-        background: None,
-        gain: None,
-        threshold: None,
-        rule: SelectionRule::SubtractNext,
-        level_filter: None,
-        references: None,
-        min_flux: 0,
+        pixels: PixelCounts::All(5),
+        ..Owned::new(CAMERA, grid(6, 4, 8, 8))
     }
 }
 
@@ -274,14 +228,14 @@ fn config_b() -> Owned {
     Owned {
         camera: CAMERA,
         windows: grid(4, 4, 12, 8),
-        counts: Some((0..16).map(|k| 3 + k % 9).collect()),
-        n: 0,
+        grid: None,
+        pixels: PixelCounts::PerSubaperture((0..16).map(|k| 3 + k % 9).collect()),
         background: Some((0..pixels as i32).map(|k| (k * 7919) % 801 - 400).collect()),
         gain: Some((0..pixels).map(|k| 3500 + (k * 31 % 1200) as u16).collect()),
         threshold: Some(40),
         rule: SelectionRule::Threshold,
         level_filter: None,
-        references: Some(
+        reference_slopes: Some(
             (0..16)
                 .map(|k| [k * 4099 - 30_000, 12_345 - k * 777])
                 .collect(),
@@ -295,7 +249,7 @@ fn config_filtered() -> Owned {
     Owned {
         rule: SelectionRule::SubtractMean { count: 3 },
         level_filter: Some(LevelFilter { gain_shift: 2 }),
-        counts: Some((0..24).map(|k| 4 + k % 6).collect()),
+        pixels: PixelCounts::PerSubaperture((0..24).map(|k| 4 + k % 6).collect()),
         ..config_a()
     }
 }
@@ -471,7 +425,7 @@ fn handshake_refuses_until_matching_hello() {
 #[test]
 fn streamed_slopes_equal_a_direct_engine_run() {
     let owned = config_filtered();
-    let config = owned.config();
+    let config = owned.view();
     let frames = frames(CAMERA, 12, 1);
     let expected = direct(config, &frames);
     let (mut storage, mut host, link) = setup(SIZES, 61);
@@ -510,7 +464,7 @@ fn a_long_row_of_results_is_split_into_messages() {
         windows: grid(40, 1, 4, 8),
         ..config_a()
     };
-    let config = owned.config();
+    let config = owned.view();
     let frames = frames(owned.camera, 2, 5);
     let expected = direct(config, &frames);
     let (mut storage, mut host, link) = setup(SIZES, 1000);
@@ -533,17 +487,17 @@ fn failed_uploads_leave_the_previous_configuration_running() {
     let a = config_a();
     let b = config_b();
     let frames = frames(CAMERA, 2, 9);
-    let with_a = direct(a.config(), &frames);
-    let with_b = direct(b.config(), &frames);
+    let with_a = direct(a.view(), &frames);
+    let with_b = direct(b.view(), &frames);
     assert_ne!(with_a, with_b);
     let (mut storage, mut host, link) = setup(SIZES, 300);
     let mut device = Device::new(link, LinkOnly, storage.buffers(), "t");
     host.hello();
-    configure(&mut host, &mut device, a.config(), 1);
+    configure(&mut host, &mut device, a.view(), 1);
 
-    let b_header = ConfigHeader::of(&b.config());
+    let b_header = ConfigHeader::of(&b.view());
     let mut chunk = vec![0u8; 96];
-    let n = write_table(&b.config(), Table::Windows, 0, &mut chunk);
+    let n = write_table(&b.view(), Table::Windows, 0, &mut chunk);
     let windows_chunk = &chunk[..n];
     let begin = |id| HostMessage::ConfigBegin {
         upload_id: id,
@@ -639,7 +593,7 @@ fn failed_uploads_leave_the_previous_configuration_running() {
     verify(&mut host, &mut device, "out of order", None);
 
     // A complete upload with a wrong CRC.
-    let mut plan = UploadPlan::new(b.config(), 6, 500);
+    let mut plan = UploadPlan::new(b.view(), 6, 500);
     let mut scratch = vec![0u8; MAX_CHUNK_BYTES];
     while let Some(m) = plan.next(&mut scratch) {
         match m {
@@ -652,7 +606,7 @@ fn failed_uploads_leave_the_previous_configuration_running() {
             m => host.send(&m),
         }
     }
-    let crc = brightpix_protocol::wire::tables::tables_crc(&b.config());
+    let crc = brightpix_protocol::wire::tables::tables_crc(&b.view());
     verify(
         &mut host,
         &mut device,
@@ -666,7 +620,7 @@ fn failed_uploads_leave_the_previous_configuration_running() {
     // A complete, intact upload of an invalid configuration.
     let mut invalid = config_b();
     invalid.windows[3].x = 40; // 40 + 12 > 48
-    host.upload(invalid.config(), 7, MAX_CHUNK_BYTES);
+    host.upload(invalid.view(), 7, MAX_CHUNK_BYTES);
     verify(
         &mut host,
         &mut device,
@@ -687,7 +641,7 @@ fn failed_uploads_leave_the_previous_configuration_running() {
         windows: grid(80, 1, 2, 32),
         ..config_a()
     };
-    host.upload(wide.config(), 8, MAX_CHUNK_BYTES);
+    host.upload(wide.view(), 8, MAX_CHUNK_BYTES);
     verify(
         &mut host,
         &mut device,
@@ -710,7 +664,7 @@ fn failed_uploads_leave_the_previous_configuration_running() {
         bit_depth: 12,
     };
     huge.background = Some(vec![0; 1024 * 1024]);
-    host.upload(huge.config(), 9, MAX_CHUNK_BYTES);
+    host.upload(huge.view(), 9, MAX_CHUNK_BYTES);
     verify(
         &mut host,
         &mut device,
@@ -723,7 +677,7 @@ fn failed_uploads_leave_the_previous_configuration_running() {
     );
 
     // And finally B, intact: it replaces A.
-    configure(&mut host, &mut device, b.config(), 10);
+    configure(&mut host, &mut device, b.view(), 10);
     host.frame(1, &frames[0], 480);
     host.frame(2, &frames[1], 33);
     run(&mut device);
@@ -736,18 +690,21 @@ fn failed_uploads_leave_the_previous_configuration_running() {
 fn a_failed_commit_mid_frame_does_not_disturb_the_frame() {
     let a = config_filtered();
     let frames = frames(CAMERA, 3, 17);
-    let expected = direct(a.config(), &frames);
+    let expected = direct(a.view(), &frames);
     let (mut storage, mut host, link) = setup(SIZES, 64);
     let mut device = Device::new(link, LinkOnly, storage.buffers(), "t");
     host.hello();
-    configure(&mut host, &mut device, a.config(), 1);
+    configure(&mut host, &mut device, a.view(), 1);
     host.frame(0, &frames[0], 480);
     // Half of frame 1, a whole upload that fails validation, the other half.
     let half = frames[1].len() / 2;
     host.frame(1, &frames[1][..half], 100);
     let mut invalid = config_b();
-    invalid.counts.as_mut().unwrap()[2] = 0;
-    host.upload(invalid.config(), 2, 256);
+    let PixelCounts::PerSubaperture(list) = &mut invalid.pixels else {
+        unreachable!("config_b has N per sub-aperture")
+    };
+    list[2] = 0;
+    host.upload(invalid.view(), 2, 256);
     host.frame_from(1, &frames[1], half, 100);
     host.frame(2, &frames[2], 480);
     run(&mut device);
@@ -768,13 +725,13 @@ fn a_successful_commit_mid_frame_drops_that_frame() {
     let a = config_a();
     let b = config_b();
     let frames = frames(CAMERA, 2, 23);
-    let with_b = direct(b.config(), &frames[1..]);
+    let with_b = direct(b.view(), &frames[1..]);
     let (mut storage, mut host, link) = setup(SIZES, 64);
     let mut device = Device::new(link, LinkOnly, storage.buffers(), "t");
     host.hello();
-    configure(&mut host, &mut device, a.config(), 1);
+    configure(&mut host, &mut device, a.view(), 1);
     host.frame(0, &frames[0][..500], 100);
-    host.upload(b.config(), 2, MAX_CHUNK_BYTES);
+    host.upload(b.view(), 2, MAX_CHUNK_BYTES);
     host.frame_from(0, &frames[0], 500, 100); // the rest of the dropped frame: ignored
     host.frame(1, &frames[1], 480);
     run(&mut device);
@@ -858,11 +815,11 @@ fn with_bad_crc(message: &HostMessage<'_>) -> Vec<u8> {
 fn a_corrupted_frame_is_counted_and_the_next_frame_verifies() {
     let a = config_a();
     let frames = frames(CAMERA, 3, 31);
-    let expected = direct(a.config(), &frames);
+    let expected = direct(a.view(), &frames);
     let (mut storage, mut host, link) = setup(SIZES, 97);
     let mut device = Device::new(link, LinkOnly, storage.buffers(), "t");
     host.hello();
-    configure(&mut host, &mut device, a.config(), 1);
+    configure(&mut host, &mut device, a.view(), 1);
     // Frame 0 with its third PixelRows message corrupted on the link.
     let mut plan = PixelRowsPlan::new(0, &frames[0], 200);
     let mut scratch = vec![0u8; MAX_PIXEL_BYTES];
@@ -926,11 +883,11 @@ fn a_corrupted_frame_is_counted_and_the_next_frame_verifies() {
 fn garbage_long_frames_and_bad_pixels_are_refused_without_harm() {
     let a = config_a();
     let frames = frames(CAMERA, 2, 41);
-    let expected = direct(a.config(), &frames);
+    let expected = direct(a.view(), &frames);
     let (mut storage, mut host, link) = setup(SIZES, 128);
     let mut device = Device::new(link, LinkOnly, storage.buffers(), "t");
     host.hello();
-    configure(&mut host, &mut device, a.config(), 1);
+    configure(&mut host, &mut device, a.view(), 1);
     host.send_raw(&[1, 2, 3, 0]); // not COBS of a message
     host.send_raw(&[0x42; 3000]); // longer than any frame
     host.send_raw(&[0]);
@@ -1020,7 +977,7 @@ fn results_per_row_must_fit_the_queue() {
     );
     let mut device = Device::new(link, LinkOnly, storage.buffers(), "t");
     host.hello();
-    host.upload(a.config(), 1, MAX_CHUNK_BYTES);
+    host.upload(a.view(), 1, MAX_CHUNK_BYTES);
     run(&mut device);
     let replies = host.replies();
     assert_eq!(
@@ -1040,7 +997,7 @@ fn level_filters_reset_on_request() {
     let (mut storage, mut host, link) = setup(SIZES, 128);
     let mut device = Device::new(link, LinkOnly, storage.buffers(), "t");
     host.hello();
-    configure(&mut host, &mut device, f.config(), 1);
+    configure(&mut host, &mut device, f.view(), 1);
     host.frame(0, &frames[0], 480);
     host.frame(1, &frames[1], 480);
     host.send(&HostMessage::ResetLevelFilters);
@@ -1049,8 +1006,8 @@ fn level_filters_reset_on_request() {
     run(&mut device);
     let replies = host.replies();
     assert_eq!(acks(&replies), [Ack::LevelFiltersReset]);
-    let before = direct(f.config(), &frames[..2]);
-    let after = direct(f.config(), &frames[2..]);
+    let before = direct(f.view(), &frames[..2]);
+    let after = direct(f.view(), &frames[2..]);
     expect_verified(&replies, 0, &before[0]);
     expect_verified(&replies, 1, &before[1]);
     expect_verified(&replies, 2, &after[0]);
@@ -1111,7 +1068,7 @@ impl PixelSource for TestCamera {
 fn capture_from_a_camera_streams_slopes() {
     let a = config_filtered();
     let frames = frames(CAMERA, 5, 61);
-    let expected = direct(a.config(), &frames[..3]);
+    let expected = direct(a.view(), &frames[..3]);
     let (mut storage, mut host, link) = setup(SIZES, 128);
     let camera = TestCamera {
         frames: frames.clone(),
@@ -1122,7 +1079,7 @@ fn capture_from_a_camera_streams_slopes() {
     };
     let mut device = Device::new(link, camera, storage.buffers(), "cam");
     host.hello();
-    host.upload(a.config(), 1, MAX_CHUNK_BYTES);
+    host.upload(a.view(), 1, MAX_CHUNK_BYTES);
     host.send(&HostMessage::Capture { frames: 3 });
     host.send(&HostMessage::PixelRows {
         frame: 0,
@@ -1178,7 +1135,7 @@ impl Read for StreamReader {
 fn pixels_from_a_separate_stream() {
     let a = config_filtered();
     let frames = frames(CAMERA, 4, 71);
-    let expected = direct(a.config(), &frames);
+    let expected = direct(a.view(), &frames);
     let (mut storage, mut host, link) = setup(SIZES, 128);
     // The stream: PixelRows frames, with some noise a host might leave in a file.
     let mut data = Vec::new();
@@ -1203,7 +1160,7 @@ fn pixels_from_a_separate_stream() {
     );
     let mut device = Device::new(link, stream, storage.buffers(), "stream");
     host.hello();
-    host.upload(a.config(), 1, MAX_CHUNK_BYTES);
+    host.upload(a.view(), 1, MAX_CHUNK_BYTES);
     host.link.borrow_mut().closed = false;
     run(&mut device);
     let replies = host.replies();
