@@ -28,7 +28,7 @@ use brightpix_protocol::{
 };
 use serde::Deserialize;
 
-use crate::io::{self, shape_string, Array};
+use crate::io::{self, shape_string};
 
 /// The paper's recommended number of brightest pixels.
 pub const DEFAULT_PIXELS: u16 = 20;
@@ -458,6 +458,184 @@ impl fmt::Display for ConfigFileError {
 impl std::error::Error for ConfigFileError {}
 
 // ---------------------------------------------------------------------------
+// Values in natural units, data arrays in memory
+// ---------------------------------------------------------------------------
+
+/// An array handed to [`ConfigValues`]: read from a data file by the TOML
+/// loader, or given in memory by a program (the Python package). Row-major.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ArrayValues {
+    /// Names the array in error messages (the data file's path); `None` for
+    /// an array given in memory, whose errors then name only the key.
+    pub label: Option<String>,
+    pub shape: Vec<usize>,
+    pub data: Vec<f64>,
+}
+
+impl ArrayValues {
+    /// An array given in memory (no label). `data.len()` must be the
+    /// product of `shape` (`1` for a 0-d array).
+    pub fn new(shape: Vec<usize>, data: Vec<f64>) -> Self {
+        ArrayValues {
+            label: None,
+            shape,
+            data,
+        }
+    }
+
+    /// `text`, prefixed with the array's label if it has one.
+    fn named(&self, text: String) -> String {
+        match &self.label {
+            Some(label) => format!("{label}: {text}"),
+            None => text,
+        }
+    }
+}
+
+/// A regular grid of windows, as `[subapertures.grid]` gives it (pixels;
+/// the pitches default to the window size).
+#[derive(Deserialize, Clone, Debug, PartialEq, Eq)]
+#[serde(deny_unknown_fields)]
+pub struct GridValues {
+    pub x: u16,
+    pub y: u16,
+    pub columns: u16,
+    pub rows: u16,
+    pub width: u16,
+    pub height: u16,
+    pub pitch_x: Option<u16>,
+    pub pitch_y: Option<u16>,
+    /// `[column, row]` grid positions without a window.
+    #[serde(default)]
+    pub skip: Vec<[u16; 2]>,
+}
+
+/// Where the windows come from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum SubapertureValues {
+    Grid(GridValues),
+    /// `[[subapertures.window]]`.
+    Windows(Vec<SubapertureWindow>),
+    /// An `(n, 4)` table of integer-valued `x, y, width, height`.
+    Table(ArrayValues),
+}
+
+/// The background, in counts.
+#[derive(Clone, Debug, PartialEq)]
+pub enum BackgroundValues {
+    Constant(f64),
+    /// `(height, width)` or `(1, height, width)`.
+    Map(ArrayValues),
+}
+
+/// N, the number of brightest pixels.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub enum PixelValues {
+    /// [`DEFAULT_PIXELS`] for every sub-aperture.
+    #[default]
+    Default,
+    Counts(PixelCounts),
+    /// Integer values: 0-d (one N for all) or `(n,)` (one per sub-aperture).
+    Table(ArrayValues),
+}
+
+/// The selection rules by their names in the file.
+#[derive(Deserialize, Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum RuleName {
+    #[default]
+    SubtractNext,
+    Threshold,
+    SubtractNextDistinct,
+    SubtractMean,
+}
+
+impl RuleName {
+    /// Every rule with its name, in the order the documentation lists them.
+    pub const ALL: [(RuleName, &'static str); 4] = [
+        (RuleName::SubtractNext, "subtract-next"),
+        (RuleName::Threshold, "threshold"),
+        (RuleName::SubtractNextDistinct, "subtract-next-distinct"),
+        (RuleName::SubtractMean, "subtract-mean"),
+    ];
+
+    /// The rule named `name` (`"subtract-next"`, ...).
+    pub fn from_name(name: &str) -> Option<RuleName> {
+        Self::ALL.iter().find(|(_, n)| *n == name).map(|(r, _)| *r)
+    }
+
+    pub fn name(self) -> &'static str {
+        Self::ALL
+            .iter()
+            .find(|(r, _)| *r == self)
+            .map_or("", |(_, n)| n)
+    }
+
+    /// The name of `rule`'s kind.
+    pub fn of(rule: SelectionRule) -> RuleName {
+        match rule {
+            SelectionRule::SubtractNext => RuleName::SubtractNext,
+            SelectionRule::Threshold => RuleName::Threshold,
+            SelectionRule::SubtractNextDistinct => RuleName::SubtractNextDistinct,
+            SelectionRule::SubtractMean { .. } => RuleName::SubtractMean,
+        }
+    }
+}
+
+/// A whole configuration in the file's natural units (counts, pixels,
+/// plain gains; docs/CONFIG.md) with its arrays in memory: what a TOML file
+/// says once its data files are read, or what a program builds directly.
+/// [`ProcessingConfig::from_values`] converts and validates it with the
+/// same rules and messages as a file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ConfigValues {
+    pub camera: Camera,
+    pub subapertures: SubapertureValues,
+    pub background: Option<BackgroundValues>,
+    /// Flat field, `(height, width)`; the gain is flat x pixel weight.
+    pub flat: Option<ArrayValues>,
+    pub pixel_weight: Option<ArrayValues>,
+    pub threshold_counts: Option<f64>,
+    pub rule: RuleName,
+    /// M of `subtract-mean` (required by it, refused by the others).
+    pub mean_count: Option<u16>,
+    pub pixels: PixelValues,
+    pub level_filter: Option<LevelFilter>,
+    /// `(n, 2)`: `[x, y]` in pixels per sub-aperture.
+    pub reference_slopes: Option<ArrayValues>,
+    pub min_flux_counts: Option<f64>,
+}
+
+impl ConfigValues {
+    /// `subapertures` on `camera`, everything else at the file's defaults.
+    pub fn new(camera: Camera, subapertures: SubapertureValues) -> Self {
+        ConfigValues {
+            camera,
+            subapertures,
+            background: None,
+            flat: None,
+            pixel_weight: None,
+            threshold_counts: None,
+            rule: RuleName::default(),
+            mean_count: None,
+            pixels: PixelValues::Default,
+            level_filter: None,
+            reference_slopes: None,
+            min_flux_counts: None,
+        }
+    }
+}
+
+impl ProcessingConfig {
+    /// Converts `values` to the engine's units and validates them, with the
+    /// rules and messages of a TOML file; `origin` names the configuration
+    /// in errors (as a file's path does).
+    pub fn from_values(values: ConfigValues, origin: &Path) -> Result<Self, ConfigFileError> {
+        Loader::new(origin).build(values)
+    }
+}
+
+// ---------------------------------------------------------------------------
 // The file format (see docs/CONFIG.md)
 // ---------------------------------------------------------------------------
 
@@ -485,24 +663,9 @@ struct FileCamera {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct FileSubapertures {
-    grid: Option<FileGrid>,
+    grid: Option<GridValues>,
     window: Option<Vec<FileWindow>>,
     file: Option<String>,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct FileGrid {
-    x: u16,
-    y: u16,
-    columns: u16,
-    rows: u16,
-    width: u16,
-    height: u16,
-    pitch_x: Option<u16>,
-    pitch_y: Option<u16>,
-    #[serde(default)]
-    skip: Vec<[u16; 2]>,
 }
 
 #[derive(Deserialize)]
@@ -522,15 +685,6 @@ struct FileCalibration {
     flat: Option<String>,
     pixel_weight: Option<String>,
     threshold_counts: Option<f64>,
-}
-
-#[derive(Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
-#[serde(rename_all = "kebab-case")]
-enum RuleName {
-    SubtractNext,
-    Threshold,
-    SubtractNextDistinct,
-    SubtractMean,
 }
 
 #[derive(Deserialize, Default)]
@@ -564,6 +718,8 @@ struct FileCentroid {
 #[derive(Default)]
 struct Sources {
     windows: &'static str,
+    /// The windows' table was given in memory (no file to name).
+    windows_in_memory: bool,
     pixels: &'static str,
     background: &'static str,
     gain: &'static str,
@@ -611,34 +767,34 @@ impl Loader {
         }
     }
 
-    fn read_array(&self, field: &str, name: &str) -> Result<(PathBuf, Array)> {
+    /// A data file named in the TOML, labelled with its resolved path.
+    fn read_array(&self, field: &str, name: &str) -> Result<ArrayValues> {
         let path = self.resolve(name);
         let array = io::read_array(&path)
             .map_err(|e| self.error(field, ConfigFileErrorKind::Data, e.to_string()))?;
-        Ok((path, array))
+        Ok(ArrayValues {
+            label: Some(path.display().to_string()),
+            shape: array.shape,
+            data: array.data,
+        })
     }
 
-    fn shape_error(
-        &self,
-        field: &str,
-        path: &Path,
-        found: &[usize],
-        expected: &str,
-    ) -> ConfigFileError {
-        self.error(
-            field,
-            ConfigFileErrorKind::Shape,
-            format!(
-                "{} has shape {}; expected {expected}",
-                path.display(),
-                shape_string(found)
-            ),
-        )
+    fn shape_error(&self, field: &str, array: &ArrayValues, expected: &str) -> ConfigFileError {
+        let found = shape_string(&array.shape);
+        let message = match &array.label {
+            Some(label) => format!("{label} has shape {found}; expected {expected}"),
+            None => format!("shape {found}; expected {expected}"),
+        };
+        self.error(field, ConfigFileErrorKind::Shape, message)
     }
 
     /// A full-frame map: shape (height, width), or (1, height, width).
-    fn camera_map(&self, field: &str, name: &str, camera: &Camera) -> Result<(PathBuf, Vec<f64>)> {
-        let (path, array) = self.read_array(field, name)?;
+    fn camera_map<'a>(
+        &self,
+        field: &str,
+        array: &'a ArrayValues,
+        camera: &Camera,
+    ) -> Result<&'a [f64]> {
         let (h, w) = (camera.height as usize, camera.width as usize);
         let ok = match array.shape[..] {
             [rows, cols] | [1, rows, cols] => rows == h && cols == w,
@@ -647,45 +803,40 @@ impl Loader {
         if !ok {
             return Err(self.shape_error(
                 field,
-                &path,
-                &array.shape,
+                array,
                 &format!("({h}, {w}), the camera's (height, width)"),
             ));
         }
-        Ok((path, array.data))
+        Ok(&array.data)
     }
 
-    /// A 1-D or (n, k) table of integers, each in `0..=65535`.
-    fn integer_table(
-        &self,
-        field: &str,
-        path: &Path,
-        data: &[f64],
-        columns: usize,
-    ) -> Result<Vec<u16>> {
-        data.iter()
+    /// A 0-d, 1-D or (n, k) table of integers, each in `0..=65535`.
+    fn integer_table(&self, field: &str, array: &ArrayValues, columns: usize) -> Result<Vec<u16>> {
+        array
+            .data
+            .iter()
             .enumerate()
             .map(|(i, &v)| {
                 if v.fract() == 0.0 && (0.0..=65535.0).contains(&v) {
                     Ok(v as u16)
                 } else {
-                    let at = if columns > 1 {
+                    let at = if array.shape.is_empty() {
+                        "the value".to_string()
+                    } else if columns > 1 {
                         format!("row {}, column {}", i / columns, i % columns)
                     } else {
                         format!("entry {i}")
                     };
                     Err(self.value_error(
                         field,
-                        format!(
-                            "{}: {at} is {v}; expected an integer in 0..=65535",
-                            path.display()
-                        ),
+                        array.named(format!("{at} is {v}; expected an integer in 0..=65535")),
                     ))
                 }
             })
             .collect()
     }
 
+    /// The TOML text, its data files read, converted and validated.
     fn load(&self, text: &str) -> Result<ProcessingConfig> {
         let file: FileConfig = toml::from_str(text)
             .map_err(|e| self.error("", ConfigFileErrorKind::Toml, e.to_string().trim_end()))?;
@@ -694,63 +845,128 @@ impl Loader {
             height: file.camera.height,
             bit_depth: file.camera.bit_depth,
         };
+
+        let sub = file.subapertures;
+        let subapertures = match (sub.grid, sub.window, sub.file) {
+            (Some(grid), None, None) => SubapertureValues::Grid(grid),
+            (None, Some(list), None) => SubapertureValues::Windows(
+                list.iter()
+                    .map(|w| SubapertureWindow {
+                        x: w.x,
+                        y: w.y,
+                        width: w.width,
+                        height: w.height,
+                    })
+                    .collect(),
+            ),
+            (None, None, Some(name)) => {
+                SubapertureValues::Table(self.read_array("subapertures.file", &name)?)
+            }
+            _ => return Err(self.value_error(
+                "subapertures",
+                "give exactly one of [subapertures.grid], [[subapertures.window]] or subapertures.file",
+            )),
+        };
+        let mut values = ConfigValues::new(camera, subapertures);
+
+        let sel = file.selection;
+        values.rule = sel.rule.unwrap_or_default();
+        values.mean_count = sel.mean_count;
+        values.pixels = match (&sel.pixels, &sel.pixels_file) {
+            (Some(_), Some(_)) => {
+                return Err(self.value_error(
+                    "selection.pixels",
+                    "give either selection.pixels or selection.pixels_file, not both",
+                ))
+            }
+            (None, None) => PixelValues::Default,
+            (Some(value), None) => PixelValues::Counts(self.pixels_value(value)?),
+            (None, Some(name)) => {
+                PixelValues::Table(self.read_array("selection.pixels_file", name)?)
+            }
+        };
+        values.level_filter = sel.level_filter.map(|f| LevelFilter {
+            gain_shift: f.gain_shift,
+        });
+
+        let cal = file.calibration;
+        values.background =
+            match (&cal.background, cal.background_counts) {
+                (Some(_), Some(_)) => return Err(self.value_error(
+                    "calibration.background",
+                    "give either background (a map) or background_counts (a constant), not both",
+                )),
+                (None, None) => None,
+                (Some(name), None) => Some(BackgroundValues::Map(
+                    self.read_array("calibration.background", name)?,
+                )),
+                (None, Some(v)) => Some(BackgroundValues::Constant(v)),
+            };
+        values.flat = match &cal.flat {
+            Some(name) => Some(self.read_array("calibration.flat", name)?),
+            None => None,
+        };
+        values.pixel_weight = match &cal.pixel_weight {
+            Some(name) => Some(self.read_array("calibration.pixel_weight", name)?),
+            None => None,
+        };
+        values.threshold_counts = cal.threshold_counts;
+
+        let cen = file.centroid;
+        values.reference_slopes = match &cen.reference_slopes {
+            Some(name) => Some(self.read_array("centroid.reference_slopes", name)?),
+            None => None,
+        };
+        values.min_flux_counts = cen.min_flux_counts;
+        self.build(values)
+    }
+
+    /// Converts and validates values in natural units.
+    fn build(&self, values: ConfigValues) -> Result<ProcessingConfig> {
+        let camera = values.camera;
         let mut sources = Sources::default();
 
         // Windows.
-        let sub = &file.subapertures;
-        let given = [sub.grid.is_some(), sub.window.is_some(), sub.file.is_some()];
-        if given.iter().filter(|&&g| g).count() != 1 {
-            return Err(self.value_error(
-                "subapertures",
-                "give exactly one of [subapertures.grid], [[subapertures.window]] or subapertures.file",
-            ));
-        }
         let mut grid = None;
-        let windows = if let Some(g) = &sub.grid {
-            sources.windows = "subapertures.grid";
-            let layout = self.grid_layout(g)?;
-            let windows = layout.windows();
-            grid = Some(layout);
-            windows
-        } else if let Some(list) = &sub.window {
-            sources.windows = "subapertures.window";
-            list.iter()
-                .map(|w| SubapertureWindow {
-                    x: w.x,
-                    y: w.y,
-                    width: w.width,
-                    height: w.height,
-                })
-                .collect()
-        } else {
-            sources.windows = "subapertures.file";
-            let name = sub.file.as_deref().unwrap_or_default();
-            let (path, array) = self.read_array(sources.windows, name)?;
-            if !matches!(array.shape[..], [_, 4]) {
-                return Err(self.shape_error(
-                    sources.windows,
-                    &path,
-                    &array.shape,
-                    "(n, 4): x, y, width, height of each window",
-                ));
+        let windows = match &values.subapertures {
+            SubapertureValues::Grid(g) => {
+                sources.windows = "subapertures.grid";
+                let layout = self.grid_layout(g)?;
+                let windows = layout.windows();
+                grid = Some(layout);
+                windows
             }
-            let values = self.integer_table(sources.windows, &path, &array.data, 4)?;
-            values
-                .chunks_exact(4)
-                .map(|v| SubapertureWindow {
-                    x: v[0],
-                    y: v[1],
-                    width: v[2],
-                    height: v[3],
-                })
-                .collect()
+            SubapertureValues::Windows(list) => {
+                sources.windows = "subapertures.window";
+                list.clone()
+            }
+            SubapertureValues::Table(array) => {
+                sources.windows = "subapertures.file";
+                sources.windows_in_memory = array.label.is_none();
+                if !matches!(array.shape[..], [_, 4]) {
+                    return Err(self.shape_error(
+                        sources.windows,
+                        array,
+                        "(n, 4): x, y, width, height of each window",
+                    ));
+                }
+                let values = self.integer_table(sources.windows, array, 4)?;
+                values
+                    .chunks_exact(4)
+                    .map(|v| SubapertureWindow {
+                        x: v[0],
+                        y: v[1],
+                        width: v[2],
+                        height: v[3],
+                    })
+                    .collect()
+            }
         };
         let count = windows.len();
 
         // Selection.
-        let sel = &file.selection;
         let rule =
-            match (sel.rule.unwrap_or(RuleName::SubtractNext), sel.mean_count) {
+            match (values.rule, values.mean_count) {
                 (RuleName::SubtractMean, Some(count)) => SelectionRule::SubtractMean { count },
                 (RuleName::SubtractMean, None) => return Err(self.value_error(
                     "selection.mean_count",
@@ -767,37 +983,26 @@ impl Loader {
                 (RuleName::SubtractNextDistinct, None) => SelectionRule::SubtractNextDistinct,
             };
         sources.pixels = "selection.pixels";
-        let pixels = match (&sel.pixels, &sel.pixels_file) {
-            (Some(_), Some(_)) => {
-                return Err(self.value_error(
-                    "selection.pixels",
-                    "give either selection.pixels or selection.pixels_file, not both",
-                ))
-            }
-            (None, None) => PixelCounts::All(DEFAULT_PIXELS),
-            (Some(value), None) => self.pixels_value(value)?,
-            (None, Some(name)) => {
+        let pixels = match &values.pixels {
+            PixelValues::Default => PixelCounts::All(DEFAULT_PIXELS),
+            PixelValues::Counts(counts) => counts.clone(),
+            PixelValues::Table(array) => {
                 sources.pixels = "selection.pixels_file";
-                let (path, array) = self.read_array(sources.pixels, name)?;
-                if array.ndim() != 1 {
-                    return Err(self.shape_error(
-                        sources.pixels,
-                        &path,
-                        &array.shape,
-                        &format!("({count},): N for each sub-aperture"),
-                    ));
+                match array.shape[..] {
+                    [] => PixelCounts::All(self.integer_table(sources.pixels, array, 1)?[0]),
+                    [_] => {
+                        PixelCounts::PerSubaperture(self.integer_table(sources.pixels, array, 1)?)
+                    }
+                    _ => {
+                        return Err(self.shape_error(
+                            sources.pixels,
+                            array,
+                            &format!("({count},): N for each sub-aperture"),
+                        ))
+                    }
                 }
-                PixelCounts::PerSubaperture(self.integer_table(
-                    sources.pixels,
-                    &path,
-                    &array.data,
-                    1,
-                )?)
             }
         };
-        let level_filter = sel.level_filter.as_ref().map(|f| LevelFilter {
-            gain_shift: f.gain_shift,
-        });
 
         let mut config = ProcessingConfig {
             camera,
@@ -808,7 +1013,7 @@ impl Loader {
             threshold: None,
             rule,
             pixels,
-            level_filter,
+            level_filter: values.level_filter,
             reference_slopes: None,
             min_flux: 0,
         };
@@ -819,36 +1024,29 @@ impl Loader {
             .map_err(|e| self.explain(e, &config, &sources))?;
 
         // Calibration.
-        let cal = &file.calibration;
         sources.background = "calibration.background";
-        config.background = match (&cal.background, cal.background_counts) {
-            (Some(_), Some(_)) => {
-                return Err(self.value_error(
-                    "calibration.background",
-                    "give either background (a map) or background_counts (a constant), not both",
-                ))
-            }
-            (None, None) => None,
-            (Some(name), None) => {
+        config.background = match &values.background {
+            None => None,
+            Some(BackgroundValues::Map(array)) => {
                 let field = sources.background;
-                let (path, map) = self.camera_map(field, name, &camera)?;
+                let map = self.camera_map(field, array, &camera)?;
                 let mut out = Vec::with_capacity(map.len());
                 for (i, &v) in map.iter().enumerate() {
                     out.push(background_fixed(v).ok_or_else(|| {
                         let (r, c) = (i / camera.width as usize, i % camera.width as usize);
                         self.value_error(
                             field,
-                            format!(
-                                "{}: pixel (row {r}, column {c}) is {v} counts; a background must be finite and within +-{} counts",
-                                path.display(),
+                            array.named(format!(
+                                "pixel (row {r}, column {c}) is {v} counts; a background must be finite and within +-{} counts",
                                 MAX_BACKGROUND_ABS / 16
-                            ),
+                            )),
                         )
                     })?);
                 }
                 Some(out)
             }
-            (None, Some(v)) => {
+            Some(BackgroundValues::Constant(v)) => {
+                let v = *v;
                 sources.background = "calibration.background_counts";
                 let b = background_fixed(v).ok_or_else(|| {
                     self.value_error(
@@ -862,8 +1060,8 @@ impl Loader {
                 Some(vec![b; camera.pixel_count()])
             }
         };
-        config.gain = self.gain(cal, &camera, &mut sources)?;
-        if let Some(v) = cal.threshold_counts {
+        config.gain = self.gain(&values, &camera, &mut sources)?;
+        if let Some(v) = values.threshold_counts {
             let r = (v * 16.0).round();
             if !(r.is_finite() && r.abs() <= MAX_THRESHOLD_ABS as f64) {
                 return Err(self.value_error(
@@ -878,15 +1076,12 @@ impl Loader {
         }
 
         // Centroid.
-        let cen = &file.centroid;
-        if let Some(name) = &cen.reference_slopes {
+        if let Some(array) = &values.reference_slopes {
             let field = "centroid.reference_slopes";
-            let (path, array) = self.read_array(field, name)?;
             if array.shape[..] != [count, 2] {
                 return Err(self.shape_error(
                     field,
-                    &path,
-                    &array.shape,
+                    array,
                     &format!(
                         "({count}, 2): [x, y] in pixels for each of the {count} sub-apertures"
                     ),
@@ -901,12 +1096,11 @@ impl Loader {
                     if !(r.is_finite() && r.abs() <= max) {
                         return Err(self.value_error(
                             field,
-                            format!(
-                                "{}: sub-aperture {i} has {} = {v} pixels; reference slopes must be finite and within +-{} pixels",
-                                path.display(),
+                            array.named(format!(
+                                "sub-aperture {i} has {} = {v} pixels; reference slopes must be finite and within +-{} pixels",
                                 ["x", "y"][axis],
                                 MAX_REFERENCE_SLOPE_ABS >> 16
-                            ),
+                            )),
                         ));
                     }
                     *o = r as i32;
@@ -915,7 +1109,7 @@ impl Loader {
             }
             config.reference_slopes = Some(refs);
         }
-        if let Some(v) = cen.min_flux_counts {
+        if let Some(v) = values.min_flux_counts {
             let r = (v * 16.0).round();
             if !(r.is_finite() && (0.0..=(1u64 << 62) as f64).contains(&r)) {
                 return Err(self.value_error(
@@ -932,7 +1126,7 @@ impl Loader {
         Ok(config)
     }
 
-    fn grid_layout(&self, g: &FileGrid) -> Result<GridLayout> {
+    fn grid_layout(&self, g: &GridValues) -> Result<GridLayout> {
         let mut seen = std::collections::HashSet::with_capacity(g.skip.len());
         for &[c, r] in &g.skip {
             if c >= g.columns || r >= g.rows {
@@ -1009,30 +1203,30 @@ impl Loader {
 
     fn gain(
         &self,
-        cal: &FileCalibration,
+        values: &ConfigValues,
         camera: &Camera,
         sources: &mut Sources,
     ) -> Result<Option<Vec<u16>>> {
-        let field = match (&cal.flat, &cal.pixel_weight) {
+        let field = match (&values.flat, &values.pixel_weight) {
             (None, None) => return Ok(None),
             (Some(_), None) => "calibration.flat",
             (None, Some(_)) => "calibration.pixel_weight",
             (Some(_), Some(_)) => "calibration.flat * calibration.pixel_weight",
         };
         sources.gain = field;
-        let flat = match &cal.flat {
-            Some(name) => Some(self.camera_map("calibration.flat", name, camera)?),
+        let flat = match &values.flat {
+            Some(array) => Some(self.camera_map("calibration.flat", array, camera)?),
             None => None,
         };
-        let weight = match &cal.pixel_weight {
-            Some(name) => Some(self.camera_map("calibration.pixel_weight", name, camera)?),
+        let weight = match &values.pixel_weight {
+            Some(array) => Some(self.camera_map("calibration.pixel_weight", array, camera)?),
             None => None,
         };
         let n = camera.pixel_count();
         let mut gain = Vec::with_capacity(n);
         for i in 0..n {
-            let f = flat.as_ref().map_or(1.0, |(_, m)| m[i]);
-            let w = weight.as_ref().map_or(1.0, |(_, m)| m[i]);
+            let f = flat.map_or(1.0, |m| m[i]);
+            let w = weight.map_or(1.0, |m| m[i]);
             let g = f * w;
             let r = (g * 4096.0).round();
             if !(r.is_finite() && (0.0..=65535.0).contains(&r)) {
@@ -1069,6 +1263,7 @@ impl Loader {
                 None => String::new(),
             },
             (_, "subapertures.window") => format!("[[subapertures.window]] entry {index}: "),
+            (_, "subapertures.file") if sources.windows_in_memory => format!("row {index}: "),
             (_, "subapertures.file") => format!("row {index} of the file: "),
             _ => String::new(),
         };
@@ -1948,5 +2143,119 @@ min_flux_counts = 12.5
         assert_eq!(v.pixel_count(11), 3);
         assert_eq!(v.calibration.gain.unwrap().len(), 64 * 48);
         assert_eq!(v.selection.rule, SelectionRule::SubtractNext);
+    }
+
+    fn memory_values() -> ConfigValues {
+        let camera = Camera {
+            width: 64,
+            height: 48,
+            bit_depth: 12,
+        };
+        let table: Vec<f64> = [[0, 0, 16, 16], [16, 0, 16, 16], [32, 16, 16, 16]]
+            .iter()
+            .flatten()
+            .map(|&v| v as f64)
+            .collect();
+        let mut v = ConfigValues::new(
+            camera,
+            SubapertureValues::Table(ArrayValues::new(vec![3, 4], table)),
+        );
+        v.background = Some(BackgroundValues::Map(ArrayValues::new(
+            vec![48, 64],
+            (0..64 * 48).map(|i| (i % 7) as f64 * 0.5).collect(),
+        )));
+        v.flat = Some(ArrayValues::new(vec![48, 64], vec![1.25; 64 * 48]));
+        v.pixel_weight = Some(ArrayValues::new(vec![1, 48, 64], vec![0.5; 64 * 48]));
+        v.threshold_counts = Some(3.0);
+        v.rule = RuleName::SubtractMean;
+        v.mean_count = Some(4);
+        v.pixels = PixelValues::Table(ArrayValues::new(vec![3], vec![5.0, 6.0, 7.0]));
+        v.level_filter = Some(LevelFilter { gain_shift: 3 });
+        v.reference_slopes = Some(ArrayValues::new(
+            vec![3, 2],
+            vec![0.5, -0.25, 0.0, 1.0, -2.0, 0.125],
+        ));
+        v.min_flux_counts = Some(10.0);
+        v
+    }
+
+    #[test]
+    fn values_in_memory_convert_as_a_file_does() {
+        let c = ProcessingConfig::from_values(memory_values(), Path::new("keywords")).unwrap();
+        assert_eq!(c.windows.len(), 3);
+        assert_eq!(c.windows[2].x, 32);
+        assert_eq!(c.rule, SelectionRule::SubtractMean { count: 4 });
+        assert_eq!(c.pixels, PixelCounts::PerSubaperture(vec![5, 6, 7]));
+        assert_eq!(c.gain.as_ref().unwrap()[0], 2560); // 1.25 x 0.5 x 4096
+        assert_eq!(c.background.as_ref().unwrap()[3], 24); // 1.5 counts in 1/16
+        assert_eq!(c.threshold, Some(48));
+        assert_eq!(c.min_flux, 160);
+        assert_eq!(c.reference_slopes.as_ref().unwrap()[2], [-131072, 8192]);
+        // saved and loaded back from files: the same configuration
+        let dir = temp_dir("values");
+        let path = c.save(&dir, "mem").unwrap();
+        assert_eq!(ProcessingConfig::load(path).unwrap(), c);
+        // a 0-d N is one N for all
+        let mut v = memory_values();
+        v.pixels = PixelValues::Table(ArrayValues::new(vec![], vec![9.0]));
+        let c = ProcessingConfig::from_values(v, Path::new("keywords")).unwrap();
+        assert_eq!(c.pixels, PixelCounts::All(9));
+    }
+
+    #[test]
+    fn values_in_memory_errors_name_the_key_not_a_file() {
+        let origin = Path::new("keywords");
+        let mut v = memory_values();
+        if let Some(BackgroundValues::Map(a)) = &mut v.background {
+            a.data[64 + 2] = f64::NAN;
+        }
+        let err = ProcessingConfig::from_values(v, origin).unwrap_err();
+        assert_eq!(err.field.as_deref(), Some("calibration.background"));
+        assert!(
+            err.message
+                .starts_with("pixel (row 1, column 2) is NaN counts"),
+            "{err}"
+        );
+        let mut v = memory_values();
+        v.flat = Some(ArrayValues::new(vec![64, 48], vec![1.0; 64 * 48]));
+        let err = ProcessingConfig::from_values(v, origin).unwrap_err();
+        assert_eq!(err.kind, ConfigFileErrorKind::Shape);
+        assert_eq!(
+            err.message,
+            "shape (64, 48); expected (48, 64), the camera's (height, width)"
+        );
+        let mut v = memory_values();
+        v.pixels = PixelValues::Table(ArrayValues::new(vec![3], vec![5.0, 2.5, 7.0]));
+        let err = ProcessingConfig::from_values(v, origin).unwrap_err();
+        assert_eq!(
+            err.message,
+            "entry 1 is 2.5; expected an integer in 0..=65535"
+        );
+        let mut v = memory_values();
+        if let SubapertureValues::Table(a) = &mut v.subapertures {
+            a.data[8] = 60.0;
+        }
+        let err = ProcessingConfig::from_values(v, origin).unwrap_err();
+        assert_eq!(err.field.as_deref(), Some("subapertures.file"));
+        assert!(
+            err.message.starts_with(
+                "sub-aperture 2 (row 2: x = 60, y = 16, 16x16 pixels) extends outside"
+            ),
+            "{err}"
+        );
+        assert!(err.to_string().starts_with("keywords: subapertures.file: "));
+    }
+
+    #[test]
+    fn rule_names() {
+        for (rule, name) in RuleName::ALL {
+            assert_eq!(RuleName::from_name(name), Some(rule));
+            assert_eq!(rule.name(), name);
+        }
+        assert_eq!(RuleName::from_name("subtract_next"), None);
+        assert_eq!(
+            RuleName::of(SelectionRule::SubtractMean { count: 2 }),
+            RuleName::SubtractMean
+        );
     }
 }

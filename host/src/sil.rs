@@ -23,18 +23,33 @@ pub fn canary_config() -> ProcessingConfig {
     .expect("examples/canary.toml is valid")
 }
 
+/// Simulated Shack-Hartmann frames and the slopes that made them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TiledSimulation {
+    /// The camera frames, row-major.
+    pub frames: Vec<Vec<u16>>,
+    /// Per frame, per tile (row by row): the noiseless spot's centre of
+    /// gravity in pixels from the tile's centre, `[x, y]`
+    /// ([`SpotFrame::true_slope`](crate::simulator::SpotFrame::true_slope)).
+    pub true_slopes: Vec<Vec<[f64; 2]>>,
+    /// Per frame, per tile: the wavefront's G-tilt as a spot displacement
+    /// in pixels ([`SpotFrame::phase_slope`](crate::simulator::SpotFrame::phase_slope)).
+    pub phase_slopes: Vec<Vec<[f64; 2]>>,
+}
+
 /// `count` frames of `camera`, each tiled with `columns x rows` independent
 /// simulator spots (`sim.size()` pixels square) from the top-left corner;
 /// pixels outside the tiles are the simulator's background. Frame `k` uses
-/// spots `k * columns * rows ..` of run `seed`.
-pub fn tiled_frames(
+/// spots `k * columns * rows ..` of run `seed`. Panics if the tiles do not
+/// fit the camera.
+pub fn simulate_tiled(
     sim: &Simulator,
     camera: Camera,
     columns: usize,
     rows: usize,
     count: usize,
     seed: u64,
-) -> Vec<Vec<u16>> {
+) -> TiledSimulation {
     let size = sim.size();
     let (width, height) = (camera.width as usize, camera.height as usize);
     assert!(
@@ -44,20 +59,80 @@ pub fn tiled_frames(
     let per_frame = columns * rows;
     let spots = sim.frames(seed, 0, per_frame * count);
     let background = sim.calibration_background().round() as u16;
-    spots
-        .chunks(per_frame)
-        .map(|tiles| {
-            let mut frame = vec![background; width * height];
-            for (t, spot) in tiles.iter().enumerate() {
-                let (x0, y0) = ((t % columns) * size, (t / columns) * size);
-                for y in 0..size {
-                    let row = (y0 + y) * width + x0;
-                    frame[row..row + size].copy_from_slice(&spot.raw[y * size..(y + 1) * size]);
-                }
+    let mut out = TiledSimulation {
+        frames: Vec::with_capacity(count),
+        true_slopes: Vec::with_capacity(count),
+        phase_slopes: Vec::with_capacity(count),
+    };
+    for tiles in spots.chunks(per_frame) {
+        let mut frame = vec![background; width * height];
+        for (t, spot) in tiles.iter().enumerate() {
+            let (x0, y0) = ((t % columns) * size, (t / columns) * size);
+            for y in 0..size {
+                let row = (y0 + y) * width + x0;
+                frame[row..row + size].copy_from_slice(&spot.raw[y * size..(y + 1) * size]);
             }
-            frame
-        })
-        .collect()
+        }
+        out.frames.push(frame);
+        out.true_slopes
+            .push(tiles.iter().map(|s| s.true_slope).collect());
+        out.phase_slopes
+            .push(tiles.iter().map(|s| s.phase_slope).collect());
+    }
+    out
+}
+
+/// The frames of [`simulate_tiled`].
+pub fn tiled_frames(
+    sim: &Simulator,
+    camera: Camera,
+    columns: usize,
+    rows: usize,
+    count: usize,
+    seed: u64,
+) -> Vec<Vec<u16>> {
+    simulate_tiled(sim, camera, columns, rows, count, seed).frames
+}
+
+/// Simulation conditions by name: `"ngs"` (the paper's CANARY NGS, also
+/// `"canary"`), `"rayleigh:DEPTH[:ALTITUDE]"` (the paper's Rayleigh LGS,
+/// range-gate depth and gate altitude in metres, 20 km by default) or
+/// `"sodium:SEPARATION[:ALTITUDE]"` (the paper's sodium LGS, peak
+/// separation and lower peak altitude in metres, 90 km by default).
+pub fn named_conditions(name: &str) -> Result<SimulationParams, String> {
+    use crate::evaluation::tune::Lgs;
+    use crate::simulator::Source;
+    let expected = "expected \"ngs\", \"rayleigh:DEPTH[:ALTITUDE]\" or \"sodium:SEPARATION[:ALTITUDE]\" (metres)";
+    if name == "ngs" || name == "canary" {
+        return Ok(SimulationParams::canary());
+    }
+    let lgs = Lgs::parse(name).map_err(|_| format!("conditions {name:?}: {expected}"))?;
+    Ok(match lgs {
+        Lgs::Rayleigh {
+            gate_depth_m,
+            altitude_m,
+        } => {
+            let mut p = SimulationParams::canary_rayleigh(gate_depth_m);
+            if let Source::Rayleigh { altitude_m: a, .. } = &mut p.source {
+                *a = altitude_m;
+            }
+            p
+        }
+        Lgs::Sodium {
+            separation_m,
+            altitude_m,
+        } => {
+            let mut p = SimulationParams::sodium(separation_m);
+            if let Source::Sodium {
+                lower_peak_altitude_m: a,
+                ..
+            } = &mut p.source
+            {
+                *a = altitude_m;
+            }
+            p
+        }
+    })
 }
 
 /// `count` CANARY frames (49 spots of the paper's default NGS each).
@@ -139,5 +214,64 @@ pub fn verify_outcomes(
         if let Some(o) = outcome {
             verifier.check(pixels, o);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tiled_simulation_places_each_spot_and_its_slopes() {
+        let mut params = SimulationParams::canary();
+        params.pixels_per_subaperture = 8;
+        let sim = Simulator::new(params).unwrap();
+        let camera = Camera {
+            width: 20,
+            height: 9,
+            bit_depth: 16,
+        };
+        let run = simulate_tiled(&sim, camera, 2, 1, 3, 5);
+        assert_eq!(run.frames.len(), 3);
+        assert_eq!(run.true_slopes.len(), 3);
+        let spots = sim.frames(5, 0, 6);
+        for (k, frame) in run.frames.iter().enumerate() {
+            assert_eq!(frame.len(), 20 * 9);
+            for t in 0..2 {
+                let spot = &spots[2 * k + t];
+                assert_eq!(run.true_slopes[k][t], spot.true_slope);
+                assert_eq!(run.phase_slopes[k][t], spot.phase_slope);
+                for y in 0..8 {
+                    let row = &frame[y * 20 + 8 * t..y * 20 + 8 * t + 8];
+                    assert_eq!(row, &spot.raw[y * 8..y * 8 + 8]);
+                }
+            }
+            // outside the tiles: the background
+            assert!(frame[16..20].iter().all(|&p| p == 50));
+            assert!(frame[8 * 20..].iter().all(|&p| p == 50));
+        }
+        assert_eq!(tiled_frames(&sim, camera, 2, 1, 3, 5), run.frames);
+    }
+
+    #[test]
+    fn conditions_by_name() {
+        use crate::simulator::Source;
+        assert_eq!(named_conditions("ngs").unwrap(), SimulationParams::canary());
+        assert_eq!(
+            named_conditions("rayleigh:1000").unwrap(),
+            SimulationParams::canary_rayleigh(1000.0)
+        );
+        let p = named_conditions("sodium:5000:85000").unwrap();
+        assert_eq!(p.pixel_scale_arcsec, 1.5);
+        assert!(matches!(
+            p.source,
+            Source::Sodium { separation_m, lower_peak_altitude_m, .. }
+                if separation_m == 5000.0 && lower_peak_altitude_m == 85000.0
+        ));
+        let err = named_conditions("lgs").unwrap_err();
+        assert!(
+            err.starts_with("conditions \"lgs\": expected \"ngs\""),
+            "{err}"
+        );
     }
 }
