@@ -1,6 +1,9 @@
 //! Runs the firmware's streaming engine on the host: heap-backed engine memory
 //! sized for a configuration, and frame-at-a-time processing into results in
 //! sub-aperture order. The same engine code runs on the boards.
+//!
+//! [`HostEngine`] runs on one core; [`crate::parallel::ParallelEngine`] runs
+//! a batch of frames on all cores with bit-identical results.
 
 use brightpix_firmware::engine::select::{below_capacity, heap_capacity};
 use brightpix_firmware::engine::{
@@ -50,6 +53,24 @@ impl EngineBuffers {
             values: vec![0; pool_entries],
             positions: vec![0; pool_entries],
         }
+    }
+
+    /// An engine for `config` on this memory that keeps the level-filter
+    /// state already in it (SPEC.md §4): for a caller that runs batch after
+    /// batch of one configuration. `config` must be the one the buffers were
+    /// sized and first used for.
+    pub fn resume<'c>(&mut self, config: Config<'c>) -> Result<Engine<'c, '_>, ConfigError> {
+        Engine::resume(config, self.memory())
+    }
+
+    /// An engine for `config` on this memory with fresh level-filter state.
+    pub fn start<'c>(&mut self, config: Config<'c>) -> Result<Engine<'c, '_>, ConfigError> {
+        Engine::new(config, self.memory())
+    }
+
+    /// Forgets the filtered levels (SPEC.md §4) kept in this memory.
+    pub fn reset_level_filters(&mut self) {
+        self.level_filters.fill(LevelFilterState::RESET);
     }
 
     pub fn memory(&mut self) -> EngineMemory<'_> {
@@ -102,7 +123,7 @@ impl<'c> HostEngine<'c> {
     pub fn new(config: Config<'c>) -> Result<Self, ConfigError> {
         config.validate()?;
         let mut buffers = EngineBuffers::for_config(&config);
-        Engine::new(config, buffers.memory())?;
+        buffers.start(config)?;
         Ok(HostEngine { config, buffers })
     }
 
@@ -125,7 +146,9 @@ impl<'c> HostEngine<'c> {
         frames: impl IntoIterator<Item = &'f [u16]>,
         chunks: &mut dyn Iterator<Item = usize>,
     ) -> Result<Vec<FrameResults>, (usize, FrameError)> {
-        let mut engine = Engine::resume(self.config, self.buffers.memory())
+        let mut engine = self
+            .buffers
+            .resume(self.config)
             .expect("configuration was validated when the session was made");
         let mut sink = Collector {
             results: vec![None; self.config.windows.len()],

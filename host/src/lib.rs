@@ -5,6 +5,7 @@ pub mod engine_runner;
 pub mod evaluation;
 pub mod io;
 pub mod link;
+pub mod parallel;
 pub mod reference;
 pub mod sil;
 pub mod sim_device;

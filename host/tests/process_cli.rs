@@ -55,6 +55,8 @@ fn engine_and_reference_agree_on_npy_and_fits() {
         write_array(&frames_path, &[12, 112, 112], &pixels).unwrap();
         for (name, extra) in [
             ("engine", vec!["--chunk", "37"]),
+            ("engine-all-cores", vec![]),
+            ("engine-3-threads", vec!["--threads", "3"]),
             ("reference", vec!["--reference"]),
         ] {
             let out = dir.join(format!("{name}-{extension}.npy"));
@@ -81,7 +83,7 @@ fn engine_and_reference_agree_on_npy_and_fits() {
     }
     assert!(
         outputs.windows(2).all(|w| w[0] == w[1]),
-        "engine and reference, npy and FITS: identical"
+        "engine (chunked, all cores, 3 threads) and reference, npy and FITS: identical"
     );
     // The spots were placed off-centre: slopes are not all zero.
     assert!(outputs[0].iter().any(|&s| s.abs() > 0.5));

@@ -2,7 +2,8 @@
 
 use crate::config_file::ProcessingConfig;
 use crate::engine_runner::HostEngine;
-use crate::io::{write_array, FrameSource};
+use crate::io::{write_array, FrameShape, FrameSource};
+use crate::parallel::ParallelEngine;
 use crate::reference::Reference;
 use anyhow::{Context, Result};
 use clap::Args;
@@ -29,16 +30,21 @@ pub struct ProcessArgs {
     /// Use the reference implementation (full sort per sub-aperture) instead of the streaming engine.
     #[arg(long)]
     reference: bool,
-    /// Feed the engine this many pixels at a time, as a camera link's DMA would (default: whole frames).
-    #[arg(long, value_name = "PIXELS")]
+    /// Feed the engine this many pixels at a time, as a camera link's DMA would (default: whole
+    /// frames). Runs on one core.
+    #[arg(long, value_name = "PIXELS", conflicts_with = "reference")]
     chunk: Option<usize>,
+    /// Worker threads for the engine (default: all cores). Results do not depend on it.
+    #[arg(long, value_name = "N", conflicts_with_all = ["reference", "chunk"])]
+    threads: Option<usize>,
     /// Also write the validity of each sub-aperture (uint8 0/1, shape (frames, sub-apertures)).
     #[arg(long, value_name = "FILE")]
     valid_out: Option<PathBuf>,
 }
 
-/// Frames are read and processed in batches of this many.
-const BATCH: usize = 64;
+/// Frames are read and processed in batches of about this many pixels (and
+/// at least 64 frames), so a cube of any size streams through in bounded memory.
+const BATCH_PIXELS: usize = 1 << 23;
 
 pub fn run(args: ProcessArgs) -> Result<()> {
     let config = ProcessingConfig::load(&args.config)?;
@@ -49,6 +55,7 @@ pub fn run(args: ProcessArgs) -> Result<()> {
     let mut slopes = Vec::with_capacity(frames * subapertures * 2);
     let mut valid = Vec::with_capacity(frames * subapertures);
     let started = Instant::now();
+    let mut threads = 1;
     let mut push = |x: i32, y: i32, ok: bool| {
         slopes.push(x as f64 / 65536.0);
         slopes.push(y as f64 / 65536.0);
@@ -66,22 +73,45 @@ pub fn run(args: ProcessArgs) -> Result<()> {
                 push(o.slope_x, o.slope_y, o.valid);
             }
         }
-    } else {
+    } else if let Some(chunk) = args.chunk {
         let mut engine = HostEngine::new(view).context("configuration")?;
-        let chunk = args.chunk.unwrap_or(usize::MAX);
-        let mut batch: Vec<Vec<u16>> = Vec::with_capacity(BATCH);
-        let mut first = 0;
-        while first < frames {
-            let count = BATCH.min(frames - first);
-            batch.resize_with(count, Vec::new);
-            for (k, frame) in batch.iter_mut().enumerate() {
-                source.read_frame_into(first + k, frame)?;
-            }
+        let mut frame = Vec::new();
+        for index in 0..frames {
+            source.read_frame_into(index, &mut frame)?;
             let results = engine
-                .process(batch.iter().map(Vec::as_slice), chunk)
-                .map_err(|(k, e)| anyhow::anyhow!("frame {}: {e}", first + k))?;
+                .process([frame.as_slice()], chunk)
+                .map_err(|(_, e)| anyhow::anyhow!("frame {index}: {e}"))?;
             for r in results.iter().flatten() {
                 push(r.slope_x, r.slope_y, r.valid);
+            }
+        }
+    } else {
+        let mut engine = ParallelEngine::new(&view, args.threads).context("configuration")?;
+        threads = engine.threads();
+        let shape = source.shape();
+        let batch_frames = (BATCH_PIXELS / shape.pixels_per_frame().max(1)).max(64);
+        let mut pixels = Vec::new();
+        let mut frame = Vec::new();
+        let mut first = 0;
+        while first < frames {
+            let count = batch_frames.min(frames - first);
+            pixels.clear();
+            for index in first..first + count {
+                source.read_frame_into(index, &mut frame)?;
+                pixels.extend_from_slice(&frame);
+            }
+            let batch = FrameShape {
+                frames: count,
+                ..shape
+            };
+            let results = engine.process(&pixels, batch).map_err(|e| match e {
+                crate::parallel::BatchError::Pixel { frame, error } => {
+                    anyhow::anyhow!("frame {}: {error}", first + frame)
+                }
+                other => anyhow::Error::new(other),
+            })?;
+            for (slope, valid) in results.slopes.iter().zip(&results.valid) {
+                push(slope[0], slope[1], *valid);
             }
             first += count;
         }
@@ -92,11 +122,20 @@ pub fn run(args: ProcessArgs) -> Result<()> {
         write_array(path, &[frames, subapertures], &valid)?;
     }
     let invalid = valid.iter().filter(|&&v| v == 0).count();
+    let seconds = elapsed.as_secs_f64().max(1e-9);
+    let pixels = (frames * view.camera.pixel_count()) as f64;
     eprintln!(
-        "brightpix: {frames} frames x {subapertures} sub-apertures by the {} in {:.3} s ({:.0} frames/s); {invalid} invalid; wrote {}",
-        if args.reference { "reference" } else { "streaming engine" },
-        elapsed.as_secs_f64(),
-        frames as f64 / elapsed.as_secs_f64().max(1e-9),
+        "brightpix: {frames} frames x {subapertures} sub-apertures by the {} in {:.3} s ({:.0} frames/s, {:.1} Mpx/s, reading included); {invalid} invalid; wrote {}",
+        if args.reference {
+            "reference".to_string()
+        } else if args.chunk.is_some() {
+            "streaming engine (one core, chunked)".to_string()
+        } else {
+            format!("streaming engine on {threads} thread(s)")
+        },
+        seconds,
+        frames as f64 / seconds,
+        pixels / seconds * 1e-6,
         args.out.display()
     );
     Ok(())
