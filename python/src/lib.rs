@@ -1,0 +1,31 @@
+//! `brightpix._brightpix`: the Python bindings of the brightpix host
+//! library. Thin: each function converts its arguments (numpy arrays,
+//! keywords), calls the library the command line uses, and converts the
+//! result or the error. The API is documented for Python users in
+//! `brightpix/_brightpix.pyi` and `README.md` beside this crate.
+
+mod arrays;
+mod config;
+mod device;
+mod errors;
+mod process;
+mod simulate;
+
+use pyo3::prelude::*;
+
+#[pymodule]
+fn _brightpix(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    let py = m.py();
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add("DeviceError", py.get_type::<errors::DeviceError>())?;
+    m.add("MismatchError", py.get_type::<errors::MismatchError>())?;
+    m.add_class::<config::PyConfig>()?;
+    m.add_class::<process::PyResultSet>()?;
+    m.add_function(wrap_pyfunction!(process::process, m)?)?;
+    m.add_function(wrap_pyfunction!(process::centroid, m)?)?;
+    m.add_class::<device::PyDevice>()?;
+    m.add_class::<device::PySimulatedDevice>()?;
+    m.add_class::<simulate::PySimulation>()?;
+    m.add_function(wrap_pyfunction!(simulate::simulate, m)?)?;
+    Ok(())
+}

@@ -1,0 +1,279 @@
+//! `brightpix.process`, `brightpix.centroid` and their `Result`: frames
+//! through the host's engine runner (or the reference), the GIL released.
+
+use std::path::Path;
+
+use brightpix::config_file::{
+    ArrayValues, BackgroundValues, ConfigValues, PixelValues, ProcessingConfig, RuleName,
+    SubapertureValues,
+};
+use brightpix::engine_runner::HostEngine;
+use brightpix::reference::Reference;
+use brightpix_protocol::{Camera, SubapertureWindow, MAX_WINDOW_SIDE};
+use numpy::{PyUntypedArray, PyUntypedArrayMethods};
+use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::prelude::*;
+
+use crate::arrays::{frames, to_numpy};
+use crate::config::PyConfig;
+use crate::errors::config_error;
+
+/// Results of a run, one entry per frame and sub-aperture, frame-major.
+#[derive(Default)]
+pub struct Outputs {
+    pub frames: usize,
+    pub subapertures: usize,
+    /// `[x, y]` in 2^-16 pixel.
+    pub slopes: Vec<[i32; 2]>,
+    /// 1/16 count.
+    pub flux: Vec<i64>,
+    pub valid: Vec<bool>,
+    /// Whether a result arrived (always true but for a device's lost results).
+    pub received: Vec<bool>,
+}
+
+impl Outputs {
+    pub fn with_capacity(frames: usize, subapertures: usize) -> Self {
+        let n = frames * subapertures;
+        Outputs {
+            frames,
+            subapertures,
+            slopes: Vec::with_capacity(n),
+            flux: Vec::with_capacity(n),
+            valid: Vec::with_capacity(n),
+            received: Vec::with_capacity(n),
+        }
+    }
+
+    pub fn push(&mut self, slope: [i32; 2], flux: i64, valid: bool) {
+        self.slopes.push(slope);
+        self.flux.push(flux);
+        self.valid.push(valid);
+        self.received.push(true);
+    }
+
+    pub fn push_missing(&mut self) {
+        self.slopes.push([0, 0]);
+        self.flux.push(0);
+        self.valid.push(false);
+        self.received.push(false);
+    }
+}
+
+/// `pixels` (`frames` whole frames) through the streaming engine, or the
+/// reference; the error names the frame.
+pub fn run(
+    config: &ProcessingConfig,
+    pixels: &[u16],
+    frames: usize,
+    reference: bool,
+) -> Result<Outputs, String> {
+    let view = config.view();
+    let frame_pixels = config.camera.pixel_count();
+    let mut out = Outputs::with_capacity(frames, config.windows.len());
+    let frames_iter = pixels.chunks_exact(frame_pixels.max(1)).take(frames);
+    if reference {
+        let mut reference = Reference::new(&view).map_err(|e| e.to_string())?;
+        for (k, frame) in frames_iter.enumerate() {
+            let results = reference
+                .process_frame(frame)
+                .map_err(|e| format!("frame {k}: {e}"))?;
+            for r in results {
+                out.push([r.slope_x, r.slope_y], r.flux, r.valid);
+            }
+        }
+    } else {
+        let mut engine = HostEngine::new(view).map_err(|e| e.to_string())?;
+        let results = engine
+            .process(frames_iter, usize::MAX)
+            .map_err(|(k, e)| format!("frame {k}: {e}"))?;
+        for r in results.iter().flatten() {
+            out.push([r.slope_x, r.slope_y], r.flux, r.valid);
+        }
+    }
+    Ok(out)
+}
+
+/// The results of processing or streaming frames.
+#[pyclass(name = "Result", module = "brightpix", frozen)]
+pub struct PyResultSet {
+    /// `(F, S, 2)` float64: `[x, y]` slopes in pixels, reference slopes
+    /// subtracted; 0.0 where invalid, NaN where a device sent nothing.
+    #[pyo3(get)]
+    slopes: Py<PyAny>,
+    /// `(F, S, 2)` int32: the same in 2^-16 pixel, as the engine computes them.
+    #[pyo3(get)]
+    slopes_q16: Py<PyAny>,
+    /// `(F, S)` int64: flux in 1/16 count (sum of the selected weights).
+    #[pyo3(get)]
+    flux: Py<PyAny>,
+    /// `(F, S)` bool: flux above `min_flux`.
+    #[pyo3(get)]
+    valid: Py<PyAny>,
+    /// `(F, S)` bool: a result arrived (False only for results a device lost).
+    #[pyo3(get)]
+    received: Py<PyAny>,
+    /// What computed it: "engine", "reference" or "device".
+    #[pyo3(get)]
+    source: &'static str,
+    /// The configuration.
+    #[pyo3(get)]
+    config: Py<PyConfig>,
+    /// The brightpix version that computed it.
+    #[pyo3(get)]
+    version: &'static str,
+    frames: usize,
+    subapertures: usize,
+}
+
+impl PyResultSet {
+    /// Wraps `outputs`; with `single`, the frame axis is dropped.
+    pub fn new(
+        py: Python<'_>,
+        outputs: Outputs,
+        config: Py<PyConfig>,
+        source: &'static str,
+        single: bool,
+    ) -> PyResult<Self> {
+        let (f, s) = (outputs.frames, outputs.subapertures);
+        let lead: Vec<usize> = if single { vec![s] } else { vec![f, s] };
+        let with = |last: usize| [lead.as_slice(), &[last]].concat();
+        let slopes: Vec<f64> = outputs
+            .slopes
+            .iter()
+            .zip(&outputs.received)
+            .flat_map(|(xy, &got)| xy.map(|v| if got { v as f64 / 65536.0 } else { f64::NAN }))
+            .collect();
+        let q16: Vec<i32> = outputs.slopes.iter().flatten().copied().collect();
+        Ok(PyResultSet {
+            slopes: to_numpy(py, slopes, &with(2))?.unbind(),
+            slopes_q16: to_numpy(py, q16, &with(2))?.unbind(),
+            flux: to_numpy(py, outputs.flux, &lead)?.unbind(),
+            valid: to_numpy(py, outputs.valid, &lead)?.unbind(),
+            received: to_numpy(py, outputs.received, &lead)?.unbind(),
+            source,
+            config,
+            version: env!("CARGO_PKG_VERSION"),
+            frames: f,
+            subapertures: s,
+        })
+    }
+}
+
+#[pymethods]
+impl PyResultSet {
+    /// Frames.
+    #[getter]
+    fn n_frames(&self) -> usize {
+        self.frames
+    }
+
+    #[getter]
+    fn n_subapertures(&self) -> usize {
+        self.subapertures
+    }
+
+    fn __len__(&self) -> usize {
+        self.frames
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "<brightpix.Result: {} frames x {} sub-apertures, by the {}>",
+            self.frames, self.subapertures, self.source
+        )
+    }
+}
+
+/// Processes camera frames; see `brightpix/_brightpix.pyi`.
+#[pyfunction]
+#[pyo3(signature = (frames, config, *, reference = false))]
+pub fn process(
+    py: Python<'_>,
+    frames: &Bound<'_, PyAny>,
+    config: Bound<'_, PyConfig>,
+    reference: bool,
+) -> PyResult<PyResultSet> {
+    let processing = &config.get().inner;
+    let block = crate::arrays::frames(frames, &processing.camera, "frames")?;
+    let pixels = block.pixels();
+    let count = block.count;
+    let outputs = py
+        .detach(|| run(processing, pixels, count, reference))
+        .map_err(PyValueError::new_err)?;
+    let source = if reference { "reference" } else { "engine" };
+    PyResultSet::new(py, outputs, config.unbind(), source, block.single)
+}
+
+/// Centroids sub-aperture images; see `brightpix/_brightpix.pyi`.
+#[pyfunction]
+#[pyo3(signature = (image, n, rule = "subtract-next", *, mean_count = None, background = 0.0, threshold = None))]
+pub fn centroid<'py>(
+    py: Python<'py>,
+    image: &Bound<'py, PyAny>,
+    n: i64,
+    rule: &str,
+    mean_count: Option<u16>,
+    background: f64,
+    threshold: Option<f64>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let Ok(array) = image.cast::<PyUntypedArray>() else {
+        return Err(PyTypeError::new_err(
+            "image must be a numpy array of uint8 or uint16 counts, (h, w) or (k, h, w)",
+        ));
+    };
+    let shape = array.shape().to_vec();
+    let (h, w) = match shape[..] {
+        [h, w] | [_, h, w] => (h, w),
+        _ => {
+            return Err(PyValueError::new_err(format!(
+                "image must have shape (h, w) or (k, h, w); got {}",
+                crate::arrays::shape_text(&shape)
+            )))
+        }
+    };
+    let side = MAX_WINDOW_SIDE as usize;
+    if !(1..=side).contains(&h) || !(1..=side).contains(&w) {
+        return Err(PyValueError::new_err(format!(
+            "a sub-aperture image is at most {side}x{side} pixels; got {h}x{w}"
+        )));
+    }
+    let camera = Camera {
+        width: w as u16,
+        height: h as u16,
+        bit_depth: 16,
+    };
+    let window = SubapertureWindow {
+        x: 0,
+        y: 0,
+        width: w as u16,
+        height: h as u16,
+    };
+    let mut values = ConfigValues::new(camera, SubapertureValues::Windows(vec![window]));
+    values.rule = RuleName::from_name(rule).ok_or_else(|| {
+        PyValueError::new_err(format!(
+            "rule: {rule:?} is not a rule; expected one of {}",
+            RuleName::ALL.map(|(_, n)| n).join(", ")
+        ))
+    })?;
+    values.mean_count = mean_count;
+    values.pixels = PixelValues::Table(ArrayValues::new(vec![], vec![n as f64]));
+    values.background = (background != 0.0).then_some(BackgroundValues::Constant(background));
+    values.threshold_counts = threshold;
+    let config = ProcessingConfig::from_values(values, Path::new("centroid(...)"))
+        .map_err(|e| config_error(e, true))?;
+    let block = frames(image, &camera, "image")?;
+    let pixels = block.pixels();
+    let count = block.count;
+    let outputs = py
+        .detach(|| run(&config, pixels, count, false))
+        .map_err(PyValueError::new_err)?;
+    let slopes: Vec<f64> = outputs
+        .slopes
+        .iter()
+        .zip(&outputs.valid)
+        .flat_map(|(xy, &valid)| xy.map(|v| if valid { v as f64 / 65536.0 } else { f64::NAN }))
+        .collect();
+    let out_shape: &[usize] = if block.single { &[2] } else { &[count, 2] };
+    to_numpy(py, slopes, out_shape)
+}
