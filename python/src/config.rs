@@ -11,7 +11,7 @@ use brightpix::config_file::{
 use brightpix_protocol::{Camera, LevelFilter};
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::{PyBool, PyFloat, PyInt};
+use pyo3::types::{PyBool, PyDict, PyFloat, PyInt};
 
 use crate::arrays::{float_values, to_numpy};
 use crate::errors::config_error;
@@ -275,6 +275,63 @@ impl PyConfig {
             .transpose()
     }
 
+    /// The keywords that rebuild this configuration: `Config(**c.keywords())
+    /// == c`. Maps and slopes are numpy arrays in counts, gains and pixels.
+    fn keywords<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let c = &self.inner;
+        let d = PyDict::new(py);
+        d.set_item("width", c.camera.width)?;
+        d.set_item("height", c.camera.height)?;
+        d.set_item("bit_depth", c.camera.bit_depth)?;
+        match c
+            .grid
+            .as_ref()
+            .filter(|layout| layout.windows() == c.windows)
+        {
+            Some(layout) => {
+                let g = layout.grid;
+                let grid = PyDict::new(py);
+                for (k, v) in [
+                    ("x", g.x),
+                    ("y", g.y),
+                    ("columns", g.columns),
+                    ("rows", g.rows),
+                    ("width", g.width),
+                    ("height", g.height),
+                    ("pitch_x", g.pitch_x),
+                    ("pitch_y", g.pitch_y),
+                ] {
+                    grid.set_item(k, v)?;
+                }
+                let skip: Vec<(u16, u16)> = layout.skip.iter().map(|&[c, r]| (c, r)).collect();
+                grid.set_item("skip", skip)?;
+                d.set_item("grid", grid)?;
+            }
+            None => d.set_item("windows", self.windows(py)?)?,
+        }
+        d.set_item("rule", self.rule())?;
+        d.set_item("n", self.n(py)?)?;
+        d.set_item("mean_count", self.mean_count())?;
+        d.set_item("background", self.background(py)?)?;
+        d.set_item("flat", self.gain(py)?)?;
+        d.set_item("threshold", self.threshold())?;
+        d.set_item("min_flux", self.min_flux())?;
+        d.set_item("reference_slopes", self.reference_slopes(py)?)?;
+        d.set_item("level_filter", self.level_filter())?;
+        Ok(d)
+    }
+
+    /// Pickling (Dask ships configurations to its workers): by keywords.
+    fn __reduce__<'py>(
+        slf: &Bound<'py, Self>,
+    ) -> PyResult<(Bound<'py, PyAny>, (Bound<'py, PyDict>,))> {
+        let py = slf.py();
+        let rebuild = py
+            .import("brightpix._brightpix")?
+            .getattr("_config_from_keywords")?;
+        Ok((rebuild, (slf.get().keywords(py)?,)))
+    }
+
     fn __repr__(&self) -> String {
         let n = match &self.inner.pixels {
             PixelCounts::All(n) => n.to_string(),
@@ -311,4 +368,14 @@ impl PyConfig {
         map.map(|m| to_numpy(py, m.iter().map(|&v| v.into() / scale).collect(), &shape))
             .transpose()
     }
+}
+
+/// `Config(**keywords)`, for unpickling.
+#[pyfunction]
+pub fn _config_from_keywords(
+    py: Python<'_>,
+    keywords: &Bound<'_, PyDict>,
+) -> PyResult<Py<PyConfig>> {
+    let config = py.get_type::<PyConfig>().call((), Some(keywords))?;
+    Ok(config.cast_into::<PyConfig>()?.unbind())
 }

@@ -20,6 +20,7 @@ fn _brightpix(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("DeviceError", py.get_type::<errors::DeviceError>())?;
     m.add("MismatchError", py.get_type::<errors::MismatchError>())?;
     m.add_class::<config::PyConfig>()?;
+    m.add_function(wrap_pyfunction!(config::_config_from_keywords, m)?)?;
     m.add_class::<process::PyResultSet>()?;
     m.add_function(wrap_pyfunction!(process::process, m)?)?;
     m.add_function(wrap_pyfunction!(process::centroid, m)?)?;
