@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ._brightpix import (
     Config,
@@ -36,6 +37,9 @@ from ._brightpix import (
     process,
     simulate,
 )
+
+if TYPE_CHECKING:
+    from typing_extensions import Self
 
 __all__ = [
     "Config",
@@ -64,7 +68,7 @@ class SimulatedPort(str):
 
     pixels_fifo: str | None
 
-    def __new__(cls, port: str, pixels_fifo: str | None = None) -> SimulatedPort:
+    def __new__(cls, port: str, pixels_fifo: str | None = None) -> Self:
         self = super().__new__(cls, port)
         self.pixels_fifo = pixels_fifo
         return self

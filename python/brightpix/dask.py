@@ -103,9 +103,7 @@ def process(array: object, config: Config) -> DaskResult:
             "brightpix.process (or without the level filter)"
         )
     if array.dtype not in (np.uint8, np.uint16):
-        raise TypeError(
-            f"frames must be uint8 or uint16 camera counts; got dtype {array.dtype}"
-        )
+        raise TypeError(f"frames must be uint8 or uint16 camera counts; got dtype {array.dtype}")
     if array.ndim != 3:
         raise ValueError(f"frames must have shape (frames, height, width); got {array.shape}")
     if array.shape[1:] != (config.height, config.width):

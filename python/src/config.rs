@@ -19,7 +19,45 @@ use crate::errors::config_error;
 /// How a configuration built from keywords is named in errors.
 const KEYWORDS: &str = "Config(...)";
 
-/// A brightpix processing configuration (docs/CONFIG.md).
+/// A processing configuration: camera, sub-aperture windows, calibration,
+/// selection rule and N, centroiding (docs/CONFIG.md).
+///
+/// From a TOML file with :meth:`load` (the same format, validation and
+/// error messages as the ``brightpix`` command line), or from keywords,
+/// converted and validated by the same code. Every conversion to the
+/// engine's fixed point rounds half away from zero; a value that does not
+/// fit is a ``ValueError`` naming the keyword (and, for maps, the pixel).
+///
+/// Keywords (all but ``width`` and ``height`` optional; give exactly one of
+/// ``grid`` and ``windows``):
+///
+/// - ``width``, ``height``: the camera frame, pixels (1..=4096).
+/// - ``bit_depth``: bits per raw pixel, 1..=16 (default 16); frames are
+///   checked against it.
+/// - ``grid``: a dict with the keys of ``[subapertures.grid]``: ``x``,
+///   ``y`` (first window's top-left corner), ``columns``, ``rows``,
+///   ``width``, ``height`` (window size), optional ``pitch_x``,
+///   ``pitch_y`` (default: the window size) and ``skip`` (a list of
+///   ``[column, row]`` positions without a window). Windows are numbered
+///   row by row.
+/// - ``windows``: an ``(S, 4)`` integer array of ``x, y, width, height``
+///   per window, pixels, in output order. Windows are at most 64x64.
+/// - ``rule``: ``"subtract-next"`` (default; the paper's N+1th
+///   subtracted), ``"threshold"``, ``"subtract-next-distinct"`` or
+///   ``"subtract-mean"`` (SPEC.md §3).
+/// - ``n``: N, the brightest pixels kept: an int for every sub-aperture,
+///   or an ``(S,)`` integer array (default 20).
+/// - ``mean_count``: M for ``"subtract-mean"`` (1..=16).
+/// - ``background``: counts, a number or an ``(H, W)`` map.
+/// - ``flat``, ``pixel_weight``: ``(H, W)`` gain maps (dimensionless);
+///   the engine applies flat x pixel_weight, within 0..=65535/4096.
+/// - ``threshold``: counts; calibrated values below it become 0.
+/// - ``min_flux``: counts; a sub-aperture is valid only if its flux
+///   exceeds it (default 0).
+/// - ``reference_slopes``: ``(S, 2)`` ``[x, y]`` pixels subtracted from
+///   the slopes.
+/// - ``level_filter``: gain shift G (1..=16) of the temporal filter of
+///   the subtracted level (SPEC.md §4), or None (off).
 #[pyclass(name = "Config", module = "brightpix", frozen, eq)]
 #[derive(Clone, PartialEq)]
 pub struct PyConfig {
@@ -49,8 +87,7 @@ fn optional_f64(value: Option<&Bound<'_, PyAny>>, keyword: &str) -> PyResult<Opt
 
 #[pymethods]
 impl PyConfig {
-    /// Builds a configuration from keywords; see the class docstring in
-    /// `brightpix/_brightpix.pyi` for every keyword and its unit.
+    /// Builds a configuration from keywords (see the class documentation).
     #[new]
     #[pyo3(signature = (
         *, width, height, bit_depth = 16, grid = None, windows = None, rule = "subtract-next",
@@ -144,7 +181,10 @@ impl PyConfig {
             .map_err(|e| config_error(e, true))
     }
 
-    /// Loads a TOML configuration file, exactly as `brightpix --config` does.
+    /// Load a TOML configuration; relative data-file paths resolve
+    /// against its directory. Errors: ``FileNotFoundError``/``OSError``
+    /// (unreadable files), ``ValueError`` (everything else), with the
+    /// command line's message (file, key, problem).
     #[staticmethod]
     fn load(path: PathBuf) -> PyResult<Self> {
         ProcessingConfig::load(&path)
@@ -152,7 +192,8 @@ impl PyConfig {
             .map_err(|e| config_error(e, false))
     }
 
-    /// Parses TOML text; relative data-file paths resolve against `base_dir`.
+    /// Parse TOML text; relative data-file paths resolve against
+    /// ``base_dir`` (default: the current directory).
     #[staticmethod]
     #[pyo3(signature = (text, base_dir = None))]
     fn from_toml(text: &str, base_dir: Option<PathBuf>) -> PyResult<Self> {
@@ -162,13 +203,15 @@ impl PyConfig {
             .map_err(|e| config_error(e, false))
     }
 
-    /// The configuration as TOML text.
+    /// The configuration as TOML. Maps, reference slopes and long lists
+    /// are referenced as ``{name}-*.npy`` files, which :meth:`save` writes.
     #[pyo3(signature = (name = "config"))]
     fn to_toml(&self, name: &str) -> String {
         self.inner.to_toml_string(name)
     }
 
-    /// Writes `directory/name.toml` and its data files; returns the TOML path.
+    /// Write ``directory/name.toml`` and its ``.npy`` data files (exact:
+    /// loading them gives this configuration back); return the TOML path.
     #[pyo3(signature = (directory, name = "config"))]
     fn save(&self, directory: PathBuf, name: &str) -> PyResult<PathBuf> {
         self.inner
@@ -176,11 +219,13 @@ impl PyConfig {
             .map_err(|e| config_error(e, false))
     }
 
+    /// Camera width, pixels.
     #[getter]
     fn width(&self) -> u16 {
         self.inner.camera.width
     }
 
+    /// Camera height, pixels.
     #[getter]
     fn height(&self) -> u16 {
         self.inner.camera.height
@@ -191,12 +236,13 @@ impl PyConfig {
         self.inner.camera.bit_depth
     }
 
+    /// S, the number of windows.
     #[getter]
     fn n_subapertures(&self) -> usize {
         self.inner.windows.len()
     }
 
-    /// `(S, 4)` int32: x, y, width, height of each window, pixels.
+    /// ``(S, 4)``: x, y, width, height of each window, pixels.
     #[getter]
     fn windows<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         let data = self
@@ -221,7 +267,7 @@ impl PyConfig {
         }
     }
 
-    /// N: an int, or a uint16 array of one N per sub-aperture.
+    /// N: one int, or ``(S,)`` per sub-aperture.
     #[getter]
     fn n<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         match &self.inner.pixels {
@@ -230,18 +276,19 @@ impl PyConfig {
         }
     }
 
+    /// The level filter's gain shift, or None.
     #[getter]
     fn level_filter(&self) -> Option<u8> {
         self.inner.level_filter.map(|f| f.gain_shift)
     }
 
-    /// `(H, W)` float64 counts (exact multiples of 1/16), or None.
+    /// ``(H, W)`` counts (multiples of 1/16), or None.
     #[getter]
     fn background<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
         self.camera_map(py, self.inner.background.as_deref(), 16.0)
     }
 
-    /// `(H, W)` float64 gain, flat x pixel weight (multiples of 1/4096), or None.
+    /// ``(H, W)`` flat x pixel weight (multiples of 1/4096), or None.
     #[getter]
     fn gain<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
         self.camera_map(py, self.inner.gain.as_deref(), 4096.0)
@@ -259,7 +306,7 @@ impl PyConfig {
         self.inner.min_flux as f64 / 16.0
     }
 
-    /// `(S, 2)` float64 pixels, or None.
+    /// ``(S, 2)`` pixels, or None.
     #[getter]
     fn reference_slopes<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
         self.inner
@@ -275,8 +322,7 @@ impl PyConfig {
             .transpose()
     }
 
-    /// The keywords that rebuild this configuration: `Config(**c.keywords())
-    /// == c`. Maps and slopes are numpy arrays in counts, gains and pixels.
+    /// The keywords that rebuild this configuration: ``Config(**c.keywords()) == c``.
     fn keywords<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let c = &self.inner;
         let d = PyDict::new(py);

@@ -34,7 +34,17 @@ struct Connection {
     report: Option<Py<PyDict>>,
 }
 
-/// A brightpix device on a serial port.
+/// A brightpix device on a serial port (a board on USB: ``/dev/ttyACM0``;
+/// a simulated one: the port :func:`brightpix.simulated_device` yields).
+///
+/// Connecting checks the protocol version and schema. Every failure is an
+/// exception carrying the client's message: ``FileNotFoundError`` /
+/// ``PermissionError`` / ``OSError`` (the port cannot be opened),
+/// ``TimeoutError`` (the device does not answer, or stops for ``timeout``
+/// seconds), ``ConnectionError`` (the port disappears), ``DeviceError``
+/// (the device refuses), ``ValueError`` (misuse). An exception raised
+/// part-way through ``stream`` or ``capture`` carries what had arrived as
+/// ``.result``. Usable as a context manager (closes the port).
 #[pyclass(name = "Device", module = "brightpix", frozen)]
 pub struct PyDevice {
     port: String,
@@ -175,7 +185,7 @@ impl PyDevice {
         &self.port
     }
 
-    /// What the device said about itself when it connected.
+    /// The device's identity and limits (board, protocol version, schema, sizes).
     #[getter]
     fn info<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         self.with_connection(|c| {
@@ -195,19 +205,22 @@ impl PyDevice {
         })
     }
 
-    /// The configuration last applied by `configure` (or given to `stream`).
+    /// The configuration applied by :meth:`configure` (or given to :meth:`stream`).
     #[getter]
     fn config(&self, py: Python<'_>) -> PyResult<Option<Py<PyConfig>>> {
         self.with_connection(|c| Ok(c.config.as_ref().map(|p| p.clone_ref(py))))
     }
 
-    /// Totals of the last `stream` call, or None.
+    /// Totals of the last :meth:`stream`: frames sent/done/dropped,
+    /// elapsed seconds, frames per second, and with ``verify`` the frames
+    /// verified, results compared and mismatches.
     #[getter]
     fn last_stream(&self, py: Python<'_>) -> PyResult<Option<Py<PyDict>>> {
         self.with_connection(|c| Ok(c.report.as_ref().map(|p| p.clone_ref(py))))
     }
 
-    /// The device's counters.
+    /// The device's counters (active configuration id, frames processed
+    /// and dropped, link errors, overruns, pixel errors).
     fn status<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         self.with_connection(|c| {
             let client = &mut c.client;
@@ -216,7 +229,10 @@ impl PyDevice {
         })
     }
 
-    /// Uploads `config`; on any error the device keeps its previous one.
+    /// Upload ``config`` in chunks, committed atomically (on any error
+    /// the device keeps its previous configuration); resets the device's
+    /// level filters. Returns the configuration id, windows open at once,
+    /// pool entries, messages and bytes sent, and the seconds it took.
     fn configure<'py>(
         &self,
         py: Python<'py>,
@@ -244,7 +260,15 @@ impl PyDevice {
         })
     }
 
-    /// Streams frames and returns the device's results; see the stub.
+    /// Send frames (``uint8``/``uint16`` ``(H, W)`` or ``(F, H, W)``, as
+    /// for :func:`process`) and return the device's results.
+    ///
+    /// ``verify=True`` checks every integer against the reference, which
+    /// has seen every frame streamed since :meth:`configure` (so the level
+    /// filter is followed across calls), and raises ``MismatchError`` on
+    /// any difference. ``config`` tells the client the configuration of a
+    /// device configured earlier (no upload; the reference starts from a
+    /// reset level filter).
     #[pyo3(signature = (frames, verify = true, *, config = None))]
     fn stream(
         &self,
@@ -336,7 +360,9 @@ impl PyDevice {
         })
     }
 
-    /// Records `count` frames from the device's own camera.
+    /// Record ``count`` frames from the device's own camera (needs
+    /// :meth:`configure` first); a device without a camera raises
+    /// ``DeviceError`` (``NoCamera``).
     fn capture(&self, py: Python<'_>, count: u32) -> PyResult<PyResultSet> {
         self.with_connection(|c| {
             let client = &mut c.client;
@@ -403,8 +429,10 @@ enum Simulated {
     Qemu(QemuDevice),
 }
 
-/// A simulated device: the firmware's device loop in this process, or the
-/// firmware ELF in `qemu-system-arm`.
+/// A simulated device (prefer :func:`brightpix.simulated_device`):
+/// ``qemu=False`` runs the firmware's device loop on a thread of this
+/// process on a pseudo-terminal; ``qemu=True`` runs the firmware ELF in
+/// ``qemu-system-arm``, pixels through a FIFO.
 #[pyclass(name = "SimulatedDevice", module = "brightpix", frozen)]
 pub struct PySimulatedDevice {
     port: String,

@@ -1,8 +1,9 @@
 //! `brightpix._brightpix`: the Python bindings of the brightpix host
 //! library. Thin: each function converts its arguments (numpy arrays,
 //! keywords), calls the library the command line uses, and converts the
-//! result or the error. The API is documented for Python users in
-//! `brightpix/_brightpix.pyi` and `README.md` beside this crate.
+//! result or the error. The Python documentation is the docstrings here
+//! (Rust doc comments become `__doc__`); `brightpix/_brightpix.pyi` holds
+//! the types; `README.md` beside this crate the overview.
 
 mod arrays;
 mod config;

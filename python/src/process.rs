@@ -7,7 +7,8 @@ use brightpix::config_file::{
     ArrayValues, BackgroundValues, ConfigValues, PixelValues, ProcessingConfig, RuleName,
     SubapertureValues,
 };
-use brightpix::engine_runner::HostEngine;
+use brightpix::io::FrameShape;
+use brightpix::parallel::{BatchError, ParallelEngine};
 use brightpix::reference::Reference;
 use brightpix_protocol::{Camera, SubapertureWindow, MAX_WINDOW_SIDE};
 use numpy::{PyUntypedArray, PyUntypedArrayMethods};
@@ -60,21 +61,23 @@ impl Outputs {
     }
 }
 
-/// `pixels` (`frames` whole frames) through the streaming engine, or the
-/// reference; the error names the frame.
+/// `pixels` (`frames` whole frames) through the streaming engine on
+/// `threads` threads (None: all cores), or through the reference; the error
+/// names the frame.
 pub fn run(
     config: &ProcessingConfig,
     pixels: &[u16],
     frames: usize,
     reference: bool,
+    threads: Option<usize>,
 ) -> Result<Outputs, String> {
     let view = config.view();
-    let frame_pixels = config.camera.pixel_count();
-    let mut out = Outputs::with_capacity(frames, config.windows.len());
-    let frames_iter = pixels.chunks_exact(frame_pixels.max(1)).take(frames);
+    let subapertures = config.windows.len();
     if reference {
+        let mut out = Outputs::with_capacity(frames, subapertures);
         let mut reference = Reference::new(&view).map_err(|e| e.to_string())?;
-        for (k, frame) in frames_iter.enumerate() {
+        let frame_pixels = config.camera.pixel_count().max(1);
+        for (k, frame) in pixels.chunks_exact(frame_pixels).take(frames).enumerate() {
             let results = reference
                 .process_frame(frame)
                 .map_err(|e| format!("frame {k}: {e}"))?;
@@ -82,44 +85,57 @@ pub fn run(
                 out.push([r.slope_x, r.slope_y], r.flux, r.valid);
             }
         }
-    } else {
-        let mut engine = HostEngine::new(view).map_err(|e| e.to_string())?;
-        let results = engine
-            .process(frames_iter, usize::MAX)
-            .map_err(|(k, e)| format!("frame {k}: {e}"))?;
-        for r in results.iter().flatten() {
-            out.push([r.slope_x, r.slope_y], r.flux, r.valid);
-        }
+        return Ok(out);
     }
-    Ok(out)
+    let mut engine = ParallelEngine::new(&view, threads).map_err(|e| e.to_string())?;
+    let shape = FrameShape {
+        frames,
+        height: config.camera.height as usize,
+        width: config.camera.width as usize,
+    };
+    let results = engine.process(pixels, shape).map_err(|e| match e {
+        BatchError::Pixel { frame, error } => format!("frame {frame}: {error}"),
+        other => other.to_string(),
+    })?;
+    Ok(Outputs {
+        frames,
+        subapertures,
+        received: vec![true; results.slopes.len()],
+        slopes: results.slopes,
+        flux: results.flux,
+        valid: results.valid,
+    })
 }
 
-/// The results of processing or streaming frames.
+/// Slopes, flux and validity of every frame and sub-aperture, with what
+/// made them. For a single ``(H, W)`` frame the leading frame axis is
+/// absent: ``slopes`` is ``(S, 2)``, ``flux`` ``(S,)``.
 #[pyclass(name = "Result", module = "brightpix", frozen)]
 pub struct PyResultSet {
-    /// `(F, S, 2)` float64: `[x, y]` slopes in pixels, reference slopes
-    /// subtracted; 0.0 where invalid, NaN where a device sent nothing.
+    /// ``(F, S, 2)`` ``[x, y]`` pixels from the window centre, reference
+    /// slopes subtracted: ``slopes_q16 / 65536``. 0.0 where not valid; NaN
+    /// where a device sent nothing.
     #[pyo3(get)]
     slopes: Py<PyAny>,
-    /// `(F, S, 2)` int32: the same in 2^-16 pixel, as the engine computes them.
+    /// ``(F, S, 2)`` the engine's integers, 2^-16 pixel.
     #[pyo3(get)]
     slopes_q16: Py<PyAny>,
-    /// `(F, S)` int64: flux in 1/16 count (sum of the selected weights).
+    /// ``(F, S)`` the sum of the selected weights, 1/16 count.
     #[pyo3(get)]
     flux: Py<PyAny>,
-    /// `(F, S)` bool: flux above `min_flux`.
+    /// ``(F, S)`` flux above ``min_flux``.
     #[pyo3(get)]
     valid: Py<PyAny>,
-    /// `(F, S)` bool: a result arrived (False only for results a device lost).
+    /// ``(F, S)`` a result arrived (False only for a device's lost results).
     #[pyo3(get)]
     received: Py<PyAny>,
     /// What computed it: "engine", "reference" or "device".
     #[pyo3(get)]
     source: &'static str,
-    /// The configuration.
+    /// The configuration that produced it.
     #[pyo3(get)]
     config: Py<PyConfig>,
-    /// The brightpix version that computed it.
+    /// The brightpix version that produced it.
     #[pyo3(get)]
     version: &'static str,
     frames: usize,
@@ -185,27 +201,61 @@ impl PyResultSet {
     }
 }
 
-/// Processes camera frames; see `brightpix/_brightpix.pyi`.
+/// Compute the slopes of camera frames, as ``brightpix process`` does.
+///
+/// ``frames``: a numpy ``uint8`` or ``uint16`` array of counts, ``(H, W)``
+/// or ``(F, H, W)``, in any memory order and byte order (FITS data from
+/// astropy, big-endian, is fine; it is copied only when not C-contiguous
+/// native uint16). Raw values must be below ``2**config.bit_depth``.
+///
+/// ``reference=True`` uses the independent reference implementation (a
+/// full sort per sub-aperture) instead of the streaming engine; the
+/// results are identical, bit for bit.
+///
+/// The GIL is released while processing, and the engine runs on ``threads``
+/// threads (default: all cores), as ``brightpix process`` does
+/// (``brightpix::parallel::ParallelEngine``: frames split across threads,
+/// or, with the level filter, bands of sub-apertures, each with its own
+/// filter state); results do not depend on the thread count. With the
+/// level filter on, frames are processed in order and the filter starts
+/// from its reset state: one call on a cube is one pass over it.
+///
+/// Raises ``TypeError`` (not uint8/uint16, not an array), ``ValueError``
+/// (shape, a pixel above the bit depth: the message names frame, row,
+/// column and value; nothing is processed then, ``threads=0``).
 #[pyfunction]
-#[pyo3(signature = (frames, config, *, reference = false))]
+#[pyo3(signature = (frames, config, *, reference = false, threads = None))]
 pub fn process(
     py: Python<'_>,
     frames: &Bound<'_, PyAny>,
     config: Bound<'_, PyConfig>,
     reference: bool,
+    threads: Option<usize>,
 ) -> PyResult<PyResultSet> {
     let processing = &config.get().inner;
     let block = crate::arrays::frames(frames, &processing.camera, "frames")?;
     let pixels = block.pixels();
     let count = block.count;
     let outputs = py
-        .detach(|| run(processing, pixels, count, reference))
+        .detach(|| run(processing, pixels, count, reference, threads))
         .map_err(PyValueError::new_err)?;
     let source = if reference { "reference" } else { "engine" };
     PyResultSet::new(py, outputs, config.unbind(), source, block.single)
 }
 
-/// Centroids sub-aperture images; see `brightpix/_brightpix.pyi`.
+/// Brightest-pixel centre of gravity of sub-aperture images, the
+/// engine's arithmetic, for people used to aotools.
+///
+/// ``image``: ``uint8``/``uint16`` counts, ``(h, w)`` or a stack
+/// ``(k, h, w)``, at most 64x64. Returns ``[x, y]`` pixels from the
+/// image's centre, ``(2,)`` or ``(k, 2)`` (note: aotools returns ``(2, k)``);
+/// NaN where no pixel has weight. Rounded to 2^-16 pixel.
+///
+/// aotools: ``aotools.brightest_pixel(img, t)`` subtracts the
+/// ``round(t * h * w)``-th brightest value, clips at 0 and takes the centre
+/// of gravity with the origin at pixel ``[0, 0]``. That is
+/// ``centroid(img, n=round(t * h * w) - 1, rule="subtract-next")`` plus
+/// ``[(w - 1) / 2, (h - 1) / 2]``, to within 2^-16 pixel.
 #[pyfunction]
 #[pyo3(signature = (image, n, rule = "subtract-next", *, mean_count = None, background = 0.0, threshold = None))]
 pub fn centroid<'py>(
@@ -266,7 +316,7 @@ pub fn centroid<'py>(
     let pixels = block.pixels();
     let count = block.count;
     let outputs = py
-        .detach(|| run(&config, pixels, count, false))
+        .detach(|| run(&config, pixels, count, false, None))
         .map_err(PyValueError::new_err)?;
     let slopes: Vec<f64> = outputs
         .slopes

@@ -12,29 +12,31 @@ use pyo3::types::{PyDict, PyString};
 use crate::arrays::to_numpy;
 use crate::config::PyConfig;
 
-/// Simulated frames and the slopes that made them.
+/// Monte-Carlo Shack-Hartmann frames (the simulator of ``brightpix
+/// paper``) and the slopes that made them.
 #[pyclass(name = "Simulation", module = "brightpix", frozen)]
 pub struct PySimulation {
-    /// `(F, rows * size, columns * size)` uint16 camera frames, counts.
+    /// ``(F, rows * size, columns * size)`` camera counts; each frame holds
+    /// ``columns x rows`` independent sub-aperture images, row by row.
     #[pyo3(get)]
     frames: Py<PyAny>,
-    /// `(F, S, 2)` float64 pixels from each sub-aperture's centre: the
-    /// noiseless image's centre of gravity (the paper's true slope).
+    /// ``(F, S, 2)`` ``[x, y]`` pixels from each sub-aperture's centre: the
+    /// centre of gravity of the noiseless image (the paper's true slope).
     #[pyo3(get)]
     true_slopes: Py<PyAny>,
-    /// `(F, S, 2)` float64 pixels: the wavefront's G-tilt as a spot shift.
+    /// ``(F, S, 2)`` pixels: the wavefront's G-tilt as a spot shift.
     #[pyo3(get)]
     phase_slopes: Py<PyAny>,
-    /// The simulator's parameters (the keys of a conditions mapping).
+    /// Every simulator parameter (the keys a conditions dict may give).
     #[pyo3(get)]
     conditions: Py<PyAny>,
     /// Side of a sub-aperture image, pixels.
     #[pyo3(get)]
     subaperture_size: usize,
-    /// `(columns, rows)` of sub-apertures in a frame.
+    /// ``(columns, rows)``.
     #[pyo3(get)]
     grid: (usize, usize),
-    /// The background in the frames, counts (what calibration subtracts).
+    /// Counts added to every pixel (what calibration should subtract).
     #[pyo3(get)]
     background: f64,
     /// Camera bit depth.
@@ -44,8 +46,8 @@ pub struct PySimulation {
 
 #[pymethods]
 impl PySimulation {
-    /// A `Config` for these frames: the grid of sub-apertures, the camera,
-    /// the background; other keywords (rule, n, ...) as for `Config`.
+    /// A :class:`Config` for these frames (camera, grid, background);
+    /// ``keywords`` as for ``Config`` (``rule``, ``n``, ...).
     #[pyo3(signature = (**kwargs))]
     fn config(&self, py: Python<'_>, kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<Py<PyConfig>> {
         let (columns, rows) = self.grid;
@@ -99,7 +101,17 @@ fn conditions(obj: Option<&Bound<'_, PyAny>>) -> PyResult<SimulationParams> {
     }
 }
 
-/// Simulates Shack-Hartmann frames; see `brightpix/_brightpix.pyi`.
+/// Simulate Shack-Hartmann frames with the paper's Monte-Carlo model.
+///
+/// ``conditions``: None or ``"ngs"`` (the paper's CANARY NGS: 16x16
+/// pixels of 0.22", r0 = 12.5 cm, 200 photons, 2 e- read noise, 50-count
+/// background), ``"rayleigh:DEPTH[:ALTITUDE]"`` or
+/// ``"sodium:SEPARATION[:ALTITUDE]"`` (the paper's LGS cases, metres; the
+/// elongation is along x), or a dict of simulator parameters (the keys of
+/// :attr:`Simulation.conditions`, e.g. ``{"r0_m": 0.1, "photons": 150,
+/// "source": {"kind": "rayleigh", ...}}``; unknown keys are errors).
+/// ``grid``: ``(columns, rows)`` of sub-apertures per frame. Results
+/// depend only on ``seed`` (not on threads). GIL released.
 #[pyfunction]
 #[pyo3(signature = (conditions = None, frames = 100, seed = 1, *, grid = (1, 1)))]
 pub fn simulate(

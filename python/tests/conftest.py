@@ -30,9 +30,11 @@ def cli() -> Path:
     if shutil.which("cargo") is None:
         pytest.skip("cargo is not installed: cannot build the brightpix command line")
     out = subprocess.run(
-        ["cargo", "build", "-q", "-p", "brightpix", "--bin", "brightpix",
-         "--message-format=json"],
-        cwd=REPO, check=True, capture_output=True, text=True,
+        ["cargo", "build", "-q", "-p", "brightpix", "--bin", "brightpix", "--message-format=json"],
+        cwd=REPO,
+        check=True,
+        capture_output=True,
+        text=True,
     ).stdout
     for line in out.splitlines():
         message = json.loads(line)

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from astropy.io import fits
-from conftest import run_cli
 
 import brightpix
+from conftest import run_cli
 
 COLUMNS, ROWS, SIZE = 4, 3, 16
 HEIGHT, WIDTH = ROWS * SIZE, COLUMNS * SIZE
@@ -94,15 +94,32 @@ def test_identical_to_the_command_line(
     config = brightpix.Config.load(path)
     # the same configuration from keywords and arrays
     keywords = brightpix.Config(
-        width=WIDTH, height=HEIGHT, bit_depth=16,
+        width=WIDTH,
+        height=HEIGHT,
+        bit_depth=16,
         grid=dict(x=0, y=0, columns=COLUMNS, rows=ROWS, width=SIZE, height=SIZE),
-        rule=rule, n=case["n"], mean_count=mean_count, threshold=1.5, min_flux=40.0,
-        level_filter=gain_shift, **case["arrays"],
+        rule=rule,
+        n=case["n"],
+        mean_count=mean_count,
+        threshold=1.5,
+        min_flux=40.0,
+        level_filter=gain_shift,
+        **case["arrays"],
     )
     assert keywords == config
     out = case["dir"] / f"{rule}-{gain_shift}"
-    done = run_cli(cli, "process", "--config", path, "--frames", case["dir"] / "frames.npy",
-                   "--out", f"{out}-slopes.npy", "--valid-out", f"{out}-valid.npy")
+    done = run_cli(
+        cli,
+        "process",
+        "--config",
+        path,
+        "--frames",
+        case["dir"] / "frames.npy",
+        "--out",
+        f"{out}-slopes.npy",
+        "--valid-out",
+        f"{out}-valid.npy",
+    )
     assert done.returncode == 0, done.stderr
     cli_slopes = np.load(f"{out}-slopes.npy")
     cli_valid = np.load(f"{out}-valid.npy").astype(bool)
@@ -116,6 +133,11 @@ def test_identical_to_the_command_line(
     assert 0 < result.valid.sum() < result.valid.size or rule == "threshold"
     assert result.flux.dtype == np.int64 and (result.flux > 0).any()
 
+    # all cores or one: the same numbers
+    one_thread = brightpix.process(case["frames"], config, threads=1)
+    assert np.array_equal(one_thread.slopes_q16, result.slopes_q16)
+    assert np.array_equal(one_thread.flux, result.flux)
+
     reference = brightpix.process(case["frames"], config, reference=True)
     assert reference.source == "reference"
     for name in ("slopes_q16", "flux", "valid"):
@@ -125,8 +147,16 @@ def test_identical_to_the_command_line(
 def test_fits_input_any_byte_and_memory_order(cli: Path, case: dict) -> None:
     path = write_config(case, "subtract-next", None, None)
     config = brightpix.Config.load(path)
-    done = run_cli(cli, "process", "--config", path, "--frames", case["dir"] / "frames.fits",
-                   "--out", case["dir"] / "fits-slopes.npy")
+    done = run_cli(
+        cli,
+        "process",
+        "--config",
+        path,
+        "--frames",
+        case["dir"] / "frames.fits",
+        "--out",
+        case["dir"] / "fits-slopes.npy",
+    )
     assert done.returncode == 0, done.stderr
     expected = np.load(case["dir"] / "fits-slopes.npy")
     data = fits.getdata(case["dir"] / "frames.fits")  # BITPIX 16 + BZERO, as astropy reads it
@@ -137,8 +167,10 @@ def test_fits_input_any_byte_and_memory_order(cli: Path, case: dict) -> None:
         assert np.array_equal(brightpix.process(frames, config).slopes, expected)
     # uint8 frames: the same numbers as the same values in uint16
     small = (case["frames"] // 256).astype(np.uint8)
-    assert np.array_equal(brightpix.process(small, config).slopes_q16,
-                          brightpix.process(small.astype(np.uint16), config).slopes_q16)
+    assert np.array_equal(
+        brightpix.process(small, config).slopes_q16,
+        brightpix.process(small.astype(np.uint16), config).slopes_q16,
+    )
     # one (H, W) frame: the frame axis is dropped
     one = brightpix.process(case["frames"][5], config)
     assert one.slopes.shape == (S, 2) and np.array_equal(one.slopes, expected[5])

@@ -10,9 +10,14 @@ import brightpix
 
 
 def test_keywords_equal_the_toml_file(canary: brightpix.Config) -> None:
-    keywords = brightpix.Config(width=112, height=112, bit_depth=16,
-                                grid=dict(x=0, y=0, columns=7, rows=7, width=16, height=16),
-                                background=50.0, n=20)
+    keywords = brightpix.Config(
+        width=112,
+        height=112,
+        bit_depth=16,
+        grid=dict(x=0, y=0, columns=7, rows=7, width=16, height=16),
+        background=50.0,
+        n=20,
+    )
     assert keywords == canary
     assert canary.n_subapertures == 49 and canary.rule == "subtract-next" and canary.n == 20
     assert canary.windows.shape == (49, 4) and canary.windows.dtype == np.int32
@@ -34,11 +39,18 @@ def test_to_toml_round_trip(canary: brightpix.Config, repo: Path) -> None:
 def test_save_and_load_with_maps(tmp_path: Path) -> None:
     rng = np.random.default_rng(1)
     config = brightpix.Config(
-        width=40, height=24, bit_depth=14,
+        width=40,
+        height=24,
+        bit_depth=14,
         windows=np.array([[0, 0, 8, 8], [10, 2, 12, 12], [30, 10, 10, 14]]),
-        rule="subtract-mean", mean_count=3, n=np.array([4, 9, 16]),
-        background=rng.uniform(0, 100, (24, 40)), flat=rng.uniform(0.5, 2, (24, 40)),
-        threshold=2.25, min_flux=12.5, reference_slopes=rng.uniform(-1, 1, (3, 2)),
+        rule="subtract-mean",
+        mean_count=3,
+        n=np.array([4, 9, 16]),
+        background=rng.uniform(0, 100, (24, 40)),
+        flat=rng.uniform(0.5, 2, (24, 40)),
+        threshold=2.25,
+        min_flux=12.5,
+        reference_slopes=rng.uniform(-1, 1, (3, 2)),
         level_filter=5,
     )
     path = config.save(tmp_path, "mine")

@@ -16,9 +16,15 @@ distributed = pytest.importorskip("dask.distributed")
 
 
 def config() -> brightpix.Config:
-    return brightpix.Config(width=48, height=32, bit_depth=12,
-                            grid=dict(x=0, y=0, columns=3, rows=2, width=16, height=16),
-                            background=20.0, n=[5, 10, 20, 40, 80, 256], min_flux=30.0)
+    return brightpix.Config(
+        width=48,
+        height=32,
+        bit_depth=12,
+        grid=dict(x=0, y=0, columns=3, rows=2, width=16, height=16),
+        background=20.0,
+        n=[5, 10, 20, 40, 80, 256],
+        min_flux=30.0,
+    )
 
 
 def frames(count: int) -> np.ndarray:
@@ -43,9 +49,12 @@ def test_local_cluster_identical_to_one_process_call() -> None:
     expected = brightpix.process(data, c)
     array = da.from_array(data, chunks=(250, 32, 48))
     assert array.numblocks == (8, 1, 1)
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                  dashboard_address=None) as cluster, \
-            distributed.Client(cluster) as client:
+    with (
+        distributed.LocalCluster(
+            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+        ) as cluster,
+        distributed.Client(cluster) as client,
+    ):
         assert len(client.scheduler_info()["workers"]) == 2
         lazy = brightpix.dask.process(array, c)
         assert lazy.slopes.shape == (2000, 6, 2) and lazy.slopes.chunks[0] == (250,) * 8

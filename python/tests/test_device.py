@@ -11,12 +11,15 @@ import pytest
 
 import brightpix
 
-QEMU_ELF = (Path(__file__).resolve().parents[2]
-            / "firmware/target/thumbv7em-none-eabihf/release/brightpix-qemu")
+QEMU_ELF = (
+    Path(__file__).resolve().parents[2]
+    / "firmware/target/thumbv7em-none-eabihf/release/brightpix-qemu"
+)
 
 
-def test_configure_stream_verify_in_process(canary: brightpix.Config,
-                                            canary_frames: np.ndarray) -> None:
+def test_configure_stream_verify_in_process(
+    canary: brightpix.Config, canary_frames: np.ndarray
+) -> None:
     with brightpix.simulated_device() as port, brightpix.Device(port) as device:
         assert port.startswith("/dev/") and port.pixels_fifo is None
         assert device.info["protocol_version"] >= 1
@@ -34,9 +37,14 @@ def test_configure_stream_verify_in_process(canary: brightpix.Config,
 
 
 def test_level_filter_is_followed_across_stream_calls(canary_frames: np.ndarray) -> None:
-    config = brightpix.Config(width=112, height=112,
-                              grid=dict(x=0, y=0, columns=7, rows=7, width=16, height=16),
-                              background=50.0, n=12, level_filter=2)
+    config = brightpix.Config(
+        width=112,
+        height=112,
+        grid=dict(x=0, y=0, columns=7, rows=7, width=16, height=16),
+        background=50.0,
+        n=12,
+        level_filter=2,
+    )
     expected = brightpix.process(canary_frames, config)
     with brightpix.simulated_device() as port, brightpix.Device(port) as device:
         device.configure(config)
@@ -49,8 +57,9 @@ def test_level_filter_is_followed_across_stream_calls(canary_frames: np.ndarray)
     assert not np.array_equal(restarted.slopes_q16, second.slopes_q16)
 
 
-def test_a_wrong_configuration_is_a_mismatch(canary: brightpix.Config,
-                                             canary_frames: np.ndarray) -> None:
+def test_a_wrong_configuration_is_a_mismatch(
+    canary: brightpix.Config, canary_frames: np.ndarray
+) -> None:
     other = brightpix.Config(**{**canary.keywords(), "n": 5})
     with brightpix.simulated_device() as port, brightpix.Device(port) as device:
         device.configure(canary)
@@ -60,15 +69,17 @@ def test_a_wrong_configuration_is_a_mismatch(canary: brightpix.Config,
     assert len(e.value.mismatches) > 0
 
 
-def test_device_errors_are_python_exceptions(canary: brightpix.Config,
-                                             canary_frames: np.ndarray) -> None:
+def test_device_errors_are_python_exceptions(
+    canary: brightpix.Config, canary_frames: np.ndarray
+) -> None:
     with pytest.raises(FileNotFoundError, match="cannot open /dev/brightpix-none"):
         brightpix.Device("/dev/brightpix-none")
     with brightpix.simulated_device() as port, brightpix.Device(port) as device:
         with pytest.raises(ValueError, match="call configure"):
             device.stream(canary_frames)
-        too_big = brightpix.Config(width=4096, height=4096,
-                                   grid=dict(x=0, y=0, columns=90, rows=90, width=8, height=8))
+        too_big = brightpix.Config(
+            width=4096, height=4096, grid=dict(x=0, y=0, columns=90, rows=90, width=8, height=8)
+        )
         with pytest.raises(brightpix.DeviceError, match="refused"):
             device.configure(too_big)
         device.configure(canary)  # the device still works
@@ -86,10 +97,12 @@ def test_device_errors_are_python_exceptions(canary: brightpix.Config,
 
 
 @pytest.mark.skipif(shutil.which("qemu-system-arm") is None, reason="qemu-system-arm not installed")
-@pytest.mark.skipif(not QEMU_ELF.exists(),
-                    reason="QEMU firmware not built (cd firmware && cargo build --release)")
-def test_configure_stream_verify_in_qemu(canary: brightpix.Config,
-                                         canary_frames: np.ndarray) -> None:
+@pytest.mark.skipif(
+    not QEMU_ELF.exists(), reason="QEMU firmware not built (cd firmware && cargo build --release)"
+)
+def test_configure_stream_verify_in_qemu(
+    canary: brightpix.Config, canary_frames: np.ndarray
+) -> None:
     with brightpix.simulated_device(qemu=True) as port:
         assert port.pixels_fifo is not None
         with brightpix.Device(port, timeout=5.0) as device:

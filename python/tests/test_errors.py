@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_cli
 
 import brightpix
+from conftest import run_cli
 
 GRID = dict(x=0, y=0, columns=2, rows=1, width=16, height=16)
 
@@ -21,7 +21,9 @@ def config() -> brightpix.Config:
 
 def test_frames_of_the_wrong_type(config: brightpix.Config) -> None:
     good = np.zeros((3, 16, 32), np.uint16)
-    with pytest.raises(TypeError, match=r"uint8 or uint16 camera counts; got dtype float64.*astype"):
+    with pytest.raises(
+        TypeError, match=r"uint8 or uint16 camera counts; got dtype float64.*astype"
+    ):
         brightpix.process(good.astype(np.float64), config)
     with pytest.raises(TypeError, match="got dtype int32"):
         brightpix.process(good.astype(np.int32), config)
@@ -29,14 +31,22 @@ def test_frames_of_the_wrong_type(config: brightpix.Config) -> None:
         brightpix.process(good.tolist(), config)
     with pytest.raises(TypeError):
         brightpix.process(good, "canary.toml")
+    with pytest.raises(ValueError, match="thread count of 0"):
+        brightpix.process(good, config, threads=0)
 
 
 def test_frames_of_the_wrong_shape(config: brightpix.Config) -> None:
-    with pytest.raises(ValueError, match=r"frames are 16x31 pixels \(height x width\); the "
-                                         r"configuration's camera is 16x32"):
+    with pytest.raises(
+        ValueError,
+        match=r"frames are 16x31 pixels \(height x width\); the "
+        r"configuration's camera is 16x32",
+    ):
         brightpix.process(np.zeros((3, 16, 31), np.uint16), config)
-    with pytest.raises(ValueError, match=r"shape \(height, width\) or \(frames, height, width\); "
-                                         r"got \(2, 3, 16, 32\)"):
+    with pytest.raises(
+        ValueError,
+        match=r"shape \(height, width\) or \(frames, height, width\); "
+        r"got \(2, 3, 16, 32\)",
+    ):
         brightpix.process(np.zeros((2, 3, 16, 32), np.uint16), config)
 
 
@@ -68,7 +78,7 @@ def test_bad_maps_and_values() -> None:
         brightpix.Config(width=32, height=16, grid=GRID, n=0)
     with pytest.raises(ValueError, match='^mean_count: rule = "subtract-mean" needs mean_count'):
         brightpix.Config(width=32, height=16, grid=GRID, rule="subtract-mean")
-    with pytest.raises(ValueError, match="^rule: \"median\" is not a rule"):
+    with pytest.raises(ValueError, match='^rule: "median" is not a rule'):
         brightpix.Config(width=32, height=16, grid=GRID, rule="median")
     with pytest.raises(ValueError, match="^grid: unknown field `colour`"):
         brightpix.Config(width=32, height=16, grid={**GRID, "colour": 1})
@@ -84,22 +94,27 @@ def test_bad_maps_and_values() -> None:
 
 def test_config_file_errors_are_the_command_lines(cli: Path, tmp_path: Path) -> None:
     path = tmp_path / "bad.toml"
-    path.write_text("[camera]\nwidth = 32\nheight = 16\nbit_depth = 12\n"
-                    "[subapertures.grid]\nx = 0\ny = 0\ncolumns = 3\nrows = 1\n"
-                    "width = 16\nheight = 16\n[selection]\npixel = 20\n")
+    path.write_text(
+        "[camera]\nwidth = 32\nheight = 16\nbit_depth = 12\n"
+        "[subapertures.grid]\nx = 0\ny = 0\ncolumns = 3\nrows = 1\n"
+        "width = 16\nheight = 16\n[selection]\npixel = 20\n"
+    )
     with pytest.raises(ValueError) as python:
         brightpix.Config.load(path)
     frames = tmp_path / "f.npy"
     np.save(frames, np.zeros((1, 16, 32), np.uint16))
-    done = run_cli(cli, "process", "--config", path, "--frames", frames, "--out", tmp_path / "o.npy")
+    done = run_cli(
+        cli, "process", "--config", path, "--frames", frames, "--out", tmp_path / "o.npy"
+    )
     assert done.returncode != 0
     assert str(python.value) in done.stderr
     assert "unknown field `pixel`" in str(python.value)
     path.write_text(path.read_text().replace("pixel = 20", "pixels = 20"))
     with pytest.raises(ValueError, match=r"bad.toml: subapertures.grid: sub-aperture 2 .* extends"):
         brightpix.Config.load(path)
-    path.write_text(path.read_text().replace("[selection]", '[calibration]\nflat = "no.npy"\n'
-                                             "[selection]"))
+    path.write_text(
+        path.read_text().replace("[selection]", '[calibration]\nflat = "no.npy"\n[selection]')
+    )
     with pytest.raises(OSError, match="calibration.flat"):
         brightpix.Config.load(path)
     with pytest.raises(FileNotFoundError, match="cannot read the configuration"):
