@@ -1,4 +1,5 @@
 //! # brightpix (host)
+pub mod bench;
 pub mod cli;
 pub mod config_file;
 pub mod engine_runner;

@@ -494,8 +494,13 @@ impl ParallelEngine {
             )
         } else if !self.level_filter && shape.frames >= threads {
             let whole = &self.whole;
-            // A few runs per thread, so a thread slowed by others catches up.
-            let run = shape.frames.div_ceil(4 * threads);
+            // A few runs per thread, so a thread slowed by others catches up,
+            // of at least about a million pixels (each run starts an engine).
+            let run = shape
+                .frames
+                .div_ceil(4 * threads)
+                .max((1 << 20) / frame_pixels.max(1))
+                .min(shape.frames.div_ceil(threads));
             self.workers.run(|| {
                 pixels
                     .par_chunks(run * frame_pixels)

@@ -1,5 +1,6 @@
 //! The `brightpix` command line: one module per subcommand.
 
+mod bench;
 mod capture;
 mod configure;
 mod demo;
@@ -29,6 +30,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     Process(process::ProcessArgs),
+    Bench(bench::BenchArgs),
     Paper(paper::PaperArgs),
     Tune(tune::TuneArgs),
     Demo(demo::DemoArgs),
@@ -45,6 +47,7 @@ pub fn main() -> ExitCode {
     let cli = Cli::parse();
     let outcome = match cli.command {
         Command::Process(args) => process::run(args),
+        Command::Bench(args) => bench::run(args),
         Command::Paper(args) => paper::run(args),
         Command::Tune(args) => tune::run(args),
         Command::Demo(args) => demo::run(args),

@@ -1,0 +1,395 @@
+//! `brightpix bench`: every speed figure in one command. The QEMU bench on
+//! Cortex-M4 and Cortex-M7 (instructions per pixel, against the honest floor,
+//! and the work after the last row) and the host bench (the engine on all
+//! cores and on one, against a per-window sort and the best peer); with
+//! `--config`, the same for the user's configuration and what it means for
+//! their camera and board.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use std::ffi::OsString;
+use std::path::{Path, PathBuf};
+
+use crate::bench::host::{host_table, peer_table};
+use crate::bench::qemu::{self, QemuCore, QemuRow};
+use crate::bench::workloads::{self, Workload};
+use crate::bench::{run_host, HostOptions, HostRow};
+use crate::config_file::ProcessingConfig;
+
+#[derive(Args)]
+#[command(
+    about = "Measure every speed figure: the engine in QEMU (Cortex-M4, M7) and on this host, against its floor and peers",
+    after_help = "Examples:\n  \
+brightpix bench                                   # QEMU (M4, M7) and host tables, built-in workloads\n  \
+brightpix bench --json figures.json               # the same, and the figures as JSON\n  \
+brightpix bench --host-only --quick               # host table only, a short run\n  \
+brightpix bench --config my.toml --camera-rate 1000\n                                                    # my configuration on simulated spots: does a 1 kHz camera fit one board?\n  \
+brightpix bench --config my.toml --frames run.fits --mhz 400 --camera-size 240x240 --camera-rate 1500\n\n\
+QEMU counts instructions exactly (-icount); a board's pixel rate assumes one instruction per cycle at --mhz\n\
+(Cortex-M7 dual issue can do better, flash and memory wait states worse). Host figures are medians of\n\
+interleaved rounds; only ratios measured in the same run mean much on a busy machine.\n\
+The QEMU part needs qemu-system-arm and the thumbv7em-none-eabihf target (scripts/setup installs both);\n\
+without them the host table is still printed."
+)]
+pub struct BenchArgs {
+    /// Also write the figures as JSON: a list of objects, QEMU rows {workload, core, instr_per_px,
+    /// floor_instr_per_px, last_row_instructions, ...} and host rows {workload, mpx_per_s, x_sort, ...}.
+    #[arg(long, value_name = "PATH")]
+    json: Option<PathBuf>,
+    /// Measure this configuration (TOML, see docs/CONFIG.md) instead of the built-in workloads.
+    #[arg(long, value_name = "C.toml")]
+    config: Option<PathBuf>,
+    /// With --config: frames to measure on (.npy or FITS cube); default: simulated spots.
+    #[arg(long, value_name = "F.npy|F.fits", requires = "config")]
+    frames: Option<PathBuf>,
+    /// With --config: the board's clock, MHz, for its pixel rate and latency.
+    #[arg(long, default_value_t = 480.0, value_name = "MHZ")]
+    mhz: f64,
+    /// With --config: the camera's frame rate, Hz: does it fit one board (and this host)?
+    #[arg(long, value_name = "HZ", requires = "config")]
+    camera_rate: Option<f64>,
+    /// With --camera-rate: the camera's size, WIDTHxHEIGHT (default: the configuration's camera).
+    #[arg(long, value_name = "WxH", requires = "camera_rate", value_parser = parse_size)]
+    camera_size: Option<(u32, u32)>,
+    /// Frames given to the QEMU bench for --config (each takes it a moment in emulation).
+    #[arg(long, default_value_t = 4, value_name = "N")]
+    qemu_frames: usize,
+    /// Only the host bench.
+    #[arg(long, conflicts_with = "qemu_only")]
+    host_only: bool,
+    /// Only the QEMU bench.
+    #[arg(long)]
+    qemu_only: bool,
+    /// QEMU cores to run (default: both).
+    #[arg(long = "core", value_name = "m4|m7", value_parser = parse_core)]
+    cores: Vec<QemuCore>,
+    /// Host threads for the all-cores figure (default: all cores).
+    #[arg(long, value_name = "N")]
+    threads: Option<usize>,
+    /// Timed host rounds (median reported).
+    #[arg(long, default_value_t = 7, value_name = "N")]
+    rounds: usize,
+    /// A short host run (3 rounds, fewer frames): for a smoke test, not for figures.
+    #[arg(long)]
+    quick: bool,
+    /// Print every host peer's figures and the QEMU bench's own output.
+    #[arg(long, short)]
+    verbose: bool,
+}
+
+fn parse_size(text: &str) -> Result<(u32, u32), String> {
+    let (w, h) = text
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("{text:?} is not WIDTHxHEIGHT, e.g. 240x240"))?;
+    let parse = |v: &str| {
+        v.trim()
+            .parse::<u32>()
+            .ok()
+            .filter(|&v| v > 0)
+            .ok_or_else(|| format!("{v:?} in {text:?} is not a positive whole number of pixels"))
+    };
+    Ok((parse(w)?, parse(h)?))
+}
+
+fn parse_core(text: &str) -> Result<QemuCore, String> {
+    match text.to_ascii_lowercase().as_str() {
+        "m4" | "cortex-m4" => Ok(QemuCore::M4),
+        "m7" | "cortex-m7" => Ok(QemuCore::M7),
+        _ => Err(format!("{text:?} is not a QEMU core: m4 or m7")),
+    }
+}
+
+pub fn run(args: BenchArgs) -> Result<()> {
+    if !(args.mhz.is_finite() && args.mhz > 0.0) {
+        bail!("--mhz {} is not a positive clock", args.mhz);
+    }
+    if let Some(rate) = args.camera_rate {
+        if !(rate.is_finite() && rate > 0.0) {
+            bail!("--camera-rate {rate} is not a positive frame rate");
+        }
+    }
+    let cores = if args.cores.is_empty() {
+        QemuCore::ALL.to_vec()
+    } else {
+        args.cores.clone()
+    };
+    let options = HostOptions {
+        rounds: if args.quick { 3 } else { args.rounds.max(1) },
+        threads: args.threads,
+        pixels_per_run: if args.quick { 1_000_000 } else { 4_000_000 },
+    };
+    let frame_pixels = if args.quick { 500_000 } else { 4_000_000 };
+
+    // The workloads (and, for a user configuration, its QEMU inputs) first:
+    // a bad configuration or frame file is refused before anything runs.
+    let user = match &args.config {
+        Some(path) => {
+            let config = ProcessingConfig::load(path)?;
+            let frames = workloads::frames_for(&config.camera, frame_pixels, 8);
+            Some(workloads::user(config, args.frames.as_deref(), frames)?)
+        }
+        None => None,
+    };
+
+    let mut qemu_rows = Vec::new();
+    let mut qemu_problem = None;
+    if !args.host_only {
+        let repo = qemu::repository_root();
+        match qemu::missing(repo.as_deref()) {
+            Some(missing) => qemu_problem = Some(missing),
+            None => {
+                let repo = repo.expect("missing() checked it");
+                let scratch =
+                    std::env::temp_dir().join(format!("brightpix-bench-{}", std::process::id()));
+                let qemu_args = match &user {
+                    Some(workload) => qemu_user_args(workload, &scratch, args.qemu_frames)?,
+                    None => Vec::new(),
+                };
+                for &core in &cores {
+                    eprintln!(
+                        "brightpix bench: QEMU {} (builds the bench the first time)...",
+                        core.name()
+                    );
+                    match qemu::run(&repo, core, &qemu_args) {
+                        Ok(run) => {
+                            if args.verbose {
+                                eprintln!("{}", run.output);
+                            }
+                            qemu_rows.extend(run.rows);
+                        }
+                        Err(error) => {
+                            qemu_problem = Some(error);
+                            break;
+                        }
+                    }
+                }
+                let _ = std::fs::remove_dir_all(&scratch);
+            }
+        }
+    }
+
+    let mut host_rows = Vec::new();
+    if !args.qemu_only {
+        let workloads = match user {
+            Some(workload) => vec![workload],
+            None => workloads::standard(frame_pixels),
+        };
+        for workload in &workloads {
+            eprintln!(
+                "brightpix bench: host, {} ({} frames)...",
+                workload.name, workload.shape.frames
+            );
+            host_rows.push(
+                run_host(workload, &options)
+                    .with_context(|| format!("host bench of {}", workload.name))?,
+            );
+        }
+    }
+
+    if !args.host_only {
+        println!("QEMU (instructions are exact; x floor: the engine over the honest floor in the same bench)");
+        if !qemu_rows.is_empty() {
+            print!("{}", qemu_table(&qemu_rows));
+        }
+        if let Some(problem) = &qemu_problem {
+            println!("  not measured: {problem}");
+        }
+        println!();
+    }
+    if !host_rows.is_empty() {
+        let threads = host_rows[0].threads;
+        println!(
+            "Host ({threads} threads; x sort, x peer: the per-window sort's and the best peer's time over the engine's, one core each)"
+        );
+        print!("{}", host_table(&host_rows));
+        if args.verbose {
+            println!();
+            print!("{}", peer_table(&host_rows));
+        }
+    }
+    if let Some(path) = &args.config {
+        println!();
+        print!(
+            "{}",
+            capacity_report(path, &args, &qemu_rows, host_rows.first())
+        );
+    }
+    if let Some(path) = &args.json {
+        let json = figures_json(&qemu_rows, &host_rows, &args);
+        std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n")
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        eprintln!("brightpix bench: wrote {}", path.display());
+    }
+    if qemu_problem.is_some() && args.qemu_only {
+        bail!("the QEMU bench did not run");
+    }
+    Ok(())
+}
+
+/// Writes the user's configuration and first frames for the QEMU bench.
+fn qemu_user_args(workload: &Workload, dir: &Path, frames: usize) -> Result<Vec<OsString>> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let count = frames.clamp(1, workload.shape.frames);
+    let pixels = &workload.pixels[..count * workload.shape.pixels_per_frame()];
+    let (config, frames) = qemu::write_user_inputs(dir, &workload.config.view(), pixels)
+        .with_context(|| format!("cannot write the QEMU bench's inputs in {}", dir.display()))?;
+    Ok(vec![
+        "--config".into(),
+        config.into(),
+        "--frames".into(),
+        frames.into(),
+    ])
+}
+
+/// A row per workload: instructions per pixel, x floor and last-row
+/// instructions on each core.
+fn qemu_table(rows: &[QemuRow]) -> String {
+    let mut workloads: Vec<&str> = Vec::new();
+    for row in rows {
+        if !workloads.contains(&row.workload.as_str()) {
+            workloads.push(&row.workload);
+        }
+    }
+    let mut out = format!(
+        "{:<34} {:>9} {:>7} {:>10}   {:>9} {:>7} {:>10}\n",
+        "workload", "M4 ins/px", "x floor", "last row", "M7 ins/px", "x floor", "last row"
+    );
+    for workload in workloads {
+        out.push_str(&format!("{workload:<34}"));
+        for core in QemuCore::ALL {
+            match rows
+                .iter()
+                .find(|r| r.workload == workload && r.core == core.name())
+            {
+                Some(r) => out.push_str(&format!(
+                    " {:>9.2} {:>7.2} {:>10.0}  ",
+                    r.instr_per_px,
+                    r.x_floor(),
+                    r.last_row_instructions
+                )),
+                None => out.push_str(&format!(" {:>9} {:>7} {:>10}  ", "-", "-", "-")),
+            }
+        }
+        out.push('\n');
+    }
+    out
+}
+
+/// Figures for the user's configuration: what one board sustains at
+/// `--mhz`, the latency after the last row, and whether the camera fits.
+fn capacity_report(
+    path: &Path,
+    args: &BenchArgs,
+    qemu_rows: &[QemuRow],
+    host: Option<&HostRow>,
+) -> String {
+    let mut out = format!("Your configuration ({}):\n", path.display());
+    let camera = camera_pixels(args, host);
+    for core in QemuCore::ALL {
+        let Some(row) = qemu_rows
+            .iter()
+            .find(|r| r.workload == workloads::USER && r.core == core.name())
+        else {
+            continue;
+        };
+        let capacity = Capacity::of(row, args.mhz);
+        out.push_str(&format!(
+            "  {} at {} MHz: {:.2} instructions/pixel ({:.2}x the floor) -> {:.1} Mpx/s per board; {:.1} us after the last row ({:.0} instructions)\n",
+            core.name(),
+            args.mhz,
+            row.instr_per_px,
+            row.x_floor(),
+            capacity.px_per_s * 1e-6,
+            capacity.latency_us,
+            row.last_row_instructions
+        ));
+        if let (Some(rate), Some((pixels, size))) = (args.camera_rate, &camera) {
+            let needed = rate * *pixels as f64;
+            let share = needed / capacity.px_per_s;
+            out.push_str(&format!(
+                "    a {size} camera at {rate} Hz needs {:.1} Mpx/s: {} ({:.0}% of the board's cycles at one instruction per cycle; the frame period is {:.0} us)\n",
+                needed * 1e-6,
+                if share <= 1.0 { "FITS one board" } else { "does NOT fit one board" },
+                share * 100.0,
+                1e6 / rate,
+            ));
+        }
+    }
+    if qemu_rows.iter().all(|r| r.workload != workloads::USER) {
+        out.push_str("  (no QEMU figures: the board's rate and latency need the QEMU bench)\n");
+    }
+    if let Some(host) = host {
+        out.push_str(&format!(
+            "  this host: {:.1} Mpx/s on {} threads ({:.1} on one core)",
+            host.mpx_per_s, host.threads, host.mpx_per_s_one_core
+        ));
+        if let (Some(rate), Some((pixels, size))) = (args.camera_rate, &camera) {
+            let needed = rate * *pixels as f64;
+            out.push_str(&format!(
+                "; a {size} camera at {rate} Hz ({:.1} Mpx/s) {}",
+                needed * 1e-6,
+                if needed <= host.mpx_per_s * 1e6 {
+                    "fits"
+                } else {
+                    "does not fit"
+                }
+            ));
+        }
+        out.push('\n');
+    }
+    out
+}
+
+/// The camera's pixel count and its size in words.
+fn camera_pixels(args: &BenchArgs, host: Option<&HostRow>) -> Option<(u64, String)> {
+    match (args.camera_size, host) {
+        (Some((w, h)), _) => Some((w as u64 * h as u64, format!("{w}x{h}"))),
+        (None, Some(host)) => Some((host.pixels_per_frame as u64, "configured".into())),
+        (None, None) => None,
+    }
+}
+
+/// A board's capacity from a QEMU row.
+struct Capacity {
+    px_per_s: f64,
+    latency_us: f64,
+}
+
+impl Capacity {
+    fn of(row: &QemuRow, mhz: f64) -> Self {
+        Capacity {
+            px_per_s: mhz * 1e6 / row.instr_per_px,
+            latency_us: row.last_row_instructions / mhz,
+        }
+    }
+}
+
+/// The JSON list: QEMU rows (with `kind: "qemu"`), then host rows (with
+/// `kind: "host"`); user rows carry their capacity at `--mhz`.
+fn figures_json(
+    qemu_rows: &[QemuRow],
+    host_rows: &[HostRow],
+    args: &BenchArgs,
+) -> serde_json::Value {
+    let mut list = Vec::new();
+    for row in qemu_rows {
+        let mut value = serde_json::to_value(row).expect("rows serialise");
+        let object = value.as_object_mut().expect("a row is an object");
+        object.insert("kind".into(), "qemu".into());
+        object.insert("x_floor".into(), row.x_floor().into());
+        if row.workload == workloads::USER {
+            let capacity = Capacity::of(row, args.mhz);
+            object.insert("mhz".into(), args.mhz.into());
+            object.insert("px_per_s_per_board".into(), capacity.px_per_s.into());
+            object.insert("latency_us".into(), capacity.latency_us.into());
+        }
+        list.push(value);
+    }
+    for row in host_rows {
+        let mut value = serde_json::to_value(row).expect("rows serialise");
+        let object = value.as_object_mut().expect("a row is an object");
+        object.insert("kind".into(), "host".into());
+        list.push(value);
+    }
+    serde_json::Value::Array(list)
+}
