@@ -21,7 +21,7 @@ least favourable to brightpix.
 
 Usage (from the repository root, after scripts/setup, which makes .venv with numpy):
   .venv/bin/python scripts/bench_numpy.py                    # 240x240 and 112x112 cubes
-  .venv/bin/python scripts/bench_numpy.py --frames 2000 --rounds 7 --brightpix target/release/brightpix
+  .venv/bin/python scripts/bench_numpy.py --frames 400 --rounds 7 --brightpix BIN
 Needs numpy; builds `target/release/brightpix` with cargo if it is missing.
 """
 
@@ -110,9 +110,16 @@ def numpy_subtract_next(cube, across, n=N):
 def ensure_brightpix(path):
     if path and os.path.exists(path):
         return path
-    path = os.path.join(os.environ.get("CARGO_TARGET_DIR", os.path.join(REPO, "target")), "release", "brightpix")
+    path = os.path.join(
+        os.environ.get("CARGO_TARGET_DIR", os.path.join(REPO, "target")),
+        "release",
+        "brightpix",
+    )
     if not os.path.exists(path):
-        print("building brightpix (cargo build --release -p brightpix)...", file=sys.stderr)
+        print(
+            "building brightpix (cargo build --release -p brightpix)...",
+            file=sys.stderr,
+        )
         subprocess.run(["cargo", "build", "--release", "-p", "brightpix"], cwd=REPO, check=True)
     return path
 
@@ -122,7 +129,7 @@ def run_cli(brightpix, config, frames, out, threads):
     if threads:
         args += ["--threads", str(threads)]
     started = time.perf_counter()
-    run = subprocess.run(args, capture_output=True, text=True)
+    run = subprocess.run(args, check=False, capture_output=True, text=True)
     wall = time.perf_counter() - started
     if run.returncode != 0:
         sys.exit(f"brightpix process failed:\n{run.stderr}")
@@ -135,7 +142,16 @@ def bench(across, frames, rounds, brightpix, threads, scratch):
     cube = spot_cube(frames, across)
     config = os.path.join(scratch, f"config-{width}.toml")
     with open(config, "w") as f:
-        f.write(CONFIG.format(width=width, height=width, across=across, side=SIDE, background=BACKGROUND_COUNTS, n=N))
+        f.write(
+            CONFIG.format(
+                width=width,
+                height=width,
+                across=across,
+                side=SIDE,
+                background=BACKGROUND_COUNTS,
+                n=N,
+            )
+        )
     frames_path = os.path.join(scratch, f"cube-{width}.npy")
     np.save(frames_path, cube)
     out = os.path.join(scratch, f"slopes-{width}.npy")
@@ -146,11 +162,11 @@ def bench(across, frames, rounds, brightpix, threads, scratch):
     theirs = numpy_subtract_next(cube, across)
     difference = float(np.max(np.abs(ours - theirs)))
     if difference > 2.0**-16:
-        sys.exit(f"{width}x{width}: numpy and brightpix disagree by {difference:.3g} px (more than 2^-16)")
+        sys.exit(f"{width}x{width}: numpy and brightpix disagree by {difference:.3g} px (> 2^-16)")
 
     package = None
     try:
-        import brightpix as package  # noqa: PLC0415 (optional)
+        import brightpix as package
 
         package_config = package.Config.load(config)
         got = package.process(cube, package_config, threads=threads).slopes
@@ -173,7 +189,11 @@ def bench(across, frames, rounds, brightpix, threads, scratch):
             times["python package"].append(time.perf_counter() - started)
     pixels = cube.size
     medians = {k: statistics.median(v) for k, v in times.items() if v}
-    print(f"{width}x{width}, {across}x{across} sub-apertures of {SIDE}x{SIDE}, subtract-next N={N}: {frames} frames, {pixels / 1e6:.1f} Mpx, max |slope difference| {difference:.2g} px")
+    print(
+        f"{width}x{width}, {across}x{across} sub-apertures of {SIDE}x{SIDE}, subtract-next"
+        f" N={N}: {frames} frames, {pixels / 1e6:.1f} Mpx,"
+        f" max |slope difference| {difference:.2g} px"
+    )
     for name, seconds in medians.items():
         ratio = medians["numpy"] / seconds
         print(f"  {name:<16} {pixels / seconds / 1e6:8.1f} Mpx/s   {ratio:6.2f}x numpy")
@@ -187,11 +207,22 @@ def bench(across, frames, rounds, brightpix, threads, scratch):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--frames", type=int, default=0, help="frames per cube (default: about 20 Mpx of frames)")
+    parser.add_argument(
+        "--frames",
+        type=int,
+        default=0,
+        help="frames per cube (default: about 20 Mpx of frames)",
+    )
     parser.add_argument("--rounds", type=int, default=5)
-    parser.add_argument("--brightpix", help="the brightpix binary (default: target/release/brightpix)")
+    parser.add_argument(
+        "--brightpix", help="the brightpix binary (default: target/release/brightpix)"
+    )
     parser.add_argument("--threads", type=int, help="brightpix threads (default: all cores)")
-    parser.add_argument("--sizes", default="15,7", help="sub-apertures across, comma-separated (15: 240x240, 7: 112x112)")
+    parser.add_argument(
+        "--sizes",
+        default="15,7",
+        help="sub-apertures across, comma-separated (15: 240x240, 7: 112x112)",
+    )
     args = parser.parse_args()
     brightpix = ensure_brightpix(args.brightpix)
     print(f"numpy {np.__version__}; brightpix {brightpix}; {os.cpu_count()} cores")
