@@ -5,53 +5,61 @@
 //! [`HostEngine`] runs on one core; [`crate::parallel::ParallelEngine`] runs
 //! a batch of frames on all cores with bit-identical results.
 
-use brightpix_firmware::engine::select::{below_capacity, heap_capacity};
 use brightpix_firmware::engine::{
-    Engine, EngineMemory, FrameError, LevelFilterState, OpenWindow, OutputSink, SubapertureResult,
+    Engine, EngineMemory, FrameError, MemorySize, OpenWindow, OutputSink, SubapertureResult,
+    SubapertureState,
 };
 use brightpix_protocol::{Config, ConfigError};
 
-/// Engine memory on the host heap, big enough for any layout of a
-/// configuration's windows (every window open at once).
+/// Engine memory on the host heap, exactly as large as a configuration
+/// needs (or as a device's budget, for a simulated device).
 pub struct EngineBuffers {
     order: Vec<u16>,
-    level_filters: Vec<LevelFilterState>,
+    subapertures: Vec<SubapertureState>,
     open: Vec<OpenWindow>,
     active: Vec<u16>,
     free: Vec<u16>,
     values: Vec<i32>,
     positions: Vec<u16>,
+    history: Vec<u16>,
+    scratch: Vec<i32>,
+    scratch_positions: Vec<u16>,
 }
 
 impl EngineBuffers {
-    /// `config` must be valid ([`Config::validate`]).
+    /// The memory `config` needs; `config` must be valid
+    /// ([`Config::validate`]).
     pub fn for_config(config: &Config<'_>) -> Self {
-        let count = config.windows.len();
-        let stride = (0..count)
-            .map(|k| {
-                let c = heap_capacity(
-                    config.selection.rule,
-                    config.pixel_count(k),
-                    config.windows[k].pixel_count(),
-                );
-                c as usize + below_capacity(config.selection.rule, c) as usize
-            })
-            .max()
-            .unwrap_or(0);
-        Self::with_capacity(count, count, count * stride)
+        Self::with_capacity(Self::needed(config).unwrap_or_default())
     }
 
-    /// Memory for `subapertures`, `open_windows` open at once and
-    /// `pool_entries` selection entries (see the engine's `memory` module).
-    pub fn with_capacity(subapertures: usize, open_windows: usize, pool_entries: usize) -> Self {
+    /// What the engine needs for `config` (the engine's own planning, with
+    /// unlimited memory).
+    pub fn needed(config: &Config<'_>) -> Result<MemorySize, ConfigError> {
+        let count = config.windows.len();
+        let unlimited = MemorySize {
+            subapertures: usize::MAX,
+            open_windows: usize::MAX,
+            pool_entries: usize::MAX,
+            history_pixels: usize::MAX,
+            scratch_entries: usize::MAX,
+        };
+        Engine::check(config, unlimited, &mut vec![0; count], &mut vec![0; count])
+    }
+
+    /// Memory of the given sizes (see the engine's `memory` module).
+    pub fn with_capacity(size: MemorySize) -> Self {
         EngineBuffers {
-            order: vec![0; subapertures],
-            level_filters: vec![LevelFilterState::RESET; subapertures],
-            open: vec![OpenWindow::CLOSED; open_windows],
-            active: vec![0; open_windows],
-            free: vec![0; open_windows],
-            values: vec![0; pool_entries],
-            positions: vec![0; pool_entries],
+            order: vec![0; size.subapertures],
+            subapertures: vec![SubapertureState::RESET; size.subapertures],
+            open: vec![OpenWindow::CLOSED; size.open_windows],
+            active: vec![0; size.open_windows],
+            free: vec![0; size.open_windows],
+            values: vec![0; size.pool_entries],
+            positions: vec![0; size.pool_entries],
+            history: vec![0; size.history_pixels],
+            scratch: vec![0; 2 * size.scratch_entries],
+            scratch_positions: vec![0; size.scratch_entries],
         }
     }
 
@@ -76,12 +84,15 @@ impl EngineBuffers {
     pub fn memory(&mut self) -> EngineMemory<'_> {
         EngineMemory {
             order: &mut self.order,
-            level_filters: &mut self.level_filters,
+            subapertures: &mut self.subapertures,
             open: &mut self.open,
             active: &mut self.active,
             free: &mut self.free,
             values: &mut self.values,
             positions: &mut self.positions,
+            history: &mut self.history,
+            scratch: &mut self.scratch,
+            scratch_positions: &mut self.scratch_positions,
         }
     }
 }

@@ -36,6 +36,7 @@ use brightpix_firmware::device::embedded_io_async::{self as eio, ErrorType};
 use brightpix_firmware::device::{
     ConfigSlot, Device, DeviceBuffers, LinkOnly, PixelRowsStream, PixelSource,
 };
+use brightpix_firmware::engine::MemorySize;
 use brightpix_firmware::engine::SubapertureResult;
 use brightpix_protocol::wire::{MAX_FRAME_LEN, MAX_PIXEL_BYTES};
 use brightpix_protocol::SubapertureWindow;
@@ -51,6 +52,10 @@ pub struct SimSizes {
     pub map_pixels: usize,
     pub open_windows: usize,
     pub pool_entries: usize,
+    /// Camera pixels of the engine's row history.
+    pub history_pixels: usize,
+    /// The engine's scratch entries (pixels of the largest selecting window).
+    pub scratch_entries: usize,
     pub results_per_row: usize,
 }
 
@@ -61,6 +66,8 @@ impl Default for SimSizes {
             map_pixels: 256 * 256,
             open_windows: 256,
             pool_entries: 256 * 271,
+            history_pixels: 64 * 4096,
+            scratch_entries: 64 * 64,
             results_per_row: 1024,
         }
     }
@@ -113,7 +120,13 @@ impl HeapDeviceStorage {
         };
         HeapDeviceStorage {
             slots: [slot(), slot()],
-            engine: EngineBuffers::with_capacity(z.subapertures, z.open_windows, z.pool_entries),
+            engine: EngineBuffers::with_capacity(MemorySize {
+                subapertures: z.subapertures,
+                open_windows: z.open_windows,
+                pool_entries: z.pool_entries,
+                history_pixels: z.history_pixels,
+                scratch_entries: z.scratch_entries,
+            }),
             vet_order: vec![0; z.subapertures],
             vet_scratch: vec![0; z.subapertures],
             results: vec![none; z.results_per_row],

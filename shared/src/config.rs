@@ -256,6 +256,11 @@ pub enum MemoryKind {
     Subapertures,
     OpenWindows,
     SelectionEntries,
+    /// Pixels of the engine's row history (the tallest selecting window's
+    /// rows of the camera).
+    RowHistory,
+    /// Scratch entries (the largest selecting window's pixels).
+    ScratchEntries,
 }
 
 impl core::fmt::Display for ConfigError {

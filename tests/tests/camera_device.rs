@@ -88,7 +88,9 @@ fn storage(subapertures: usize, pixels: usize) -> HeapDeviceStorage {
         subapertures,
         map_pixels: pixels,
         open_windows: subapertures,
-        pool_entries: subapertures * 16,
+        pool_entries: subapertures * 256,
+        history_pixels: 64 * 64,
+        scratch_entries: 64 * 64,
         results_per_row: subapertures,
     })
 }

@@ -43,7 +43,9 @@ const SIZES: Sizes = Sizes {
     subapertures: 256,
     map_pixels: 64 * 64,
     open_windows: 64,
-    pool_entries: 64 * 40,
+    pool_entries: 64 * 256,
+    history_pixels: 64 * 64,
+    scratch_entries: 64 * 64,
     results_per_row: 64,
 };
 
@@ -1182,11 +1184,14 @@ fn pixels_from_a_separate_stream() {
 
 fn sizes_for(config: &Config<'_>) -> Sizes {
     let n = config.windows.len();
+    let engine = brightpix::engine_runner::EngineBuffers::needed(config).unwrap_or_default();
     Sizes {
         subapertures: n,
         map_pixels: config.camera.pixel_count(),
         open_windows: n,
-        pool_entries: n * (65 + 16 + 1),
+        pool_entries: engine.pool_entries,
+        history_pixels: engine.history_pixels,
+        scratch_entries: engine.scratch_entries,
         results_per_row: n,
     }
 }

@@ -4,7 +4,7 @@
 
 use brightpix::engine_runner::{EngineBuffers, HostEngine};
 use brightpix::reference::Reference;
-use brightpix_firmware::engine::{Engine, EngineMemory, LevelFilterState, OpenWindow};
+use brightpix_firmware::engine::{Engine, MemorySize};
 use brightpix_protocol::{
     Calibration, Camera, Centroid, Config, ConfigError, MemoryKind, PixelCount, RegularGrid,
     Selection, SelectionRule, SubapertureWindow,
@@ -85,7 +85,11 @@ fn elt_class_80x80_grid_on_a_960x960_camera() {
         .memory_needed();
     // One grid row of windows open at a time: the memory budget of memory.rs.
     assert_eq!(needed.open_windows, 80);
-    assert_eq!(needed.pool_entries, 80 * 21);
+    // A candidate buffer of 2 (N + 1) + 32 entries per open window, the 12
+    // rows of the windows in the history, one window's pixels of scratch.
+    assert_eq!(needed.pool_entries, 80 * 74);
+    assert_eq!(needed.history_pixels, 12 * 960);
+    assert_eq!(needed.scratch_entries, 144);
     assert_engine_matches_reference(config, &[frame(camera, 7)], 4096);
 }
 
@@ -167,30 +171,10 @@ fn overlapping_and_unordered_windows() {
     }
 }
 
-/// Memory that holds `open` windows and `entries` pool entries.
-fn small_memory_result(
-    config: Config<'_>,
-    subapertures: usize,
-    open: usize,
-    entries: usize,
-) -> Result<(), ConfigError> {
-    let mut order = vec![0; subapertures];
-    let mut level_filters = vec![LevelFilterState::RESET; subapertures];
-    let mut open_windows = vec![OpenWindow::CLOSED; open];
-    let mut active = vec![0; open];
-    let mut free = vec![0; open];
-    let mut values = vec![0; entries];
-    let mut positions = vec![0; entries];
-    let memory = EngineMemory {
-        order: &mut order,
-        level_filters: &mut level_filters,
-        open: &mut open_windows,
-        active: &mut active,
-        free: &mut free,
-        values: &mut values,
-        positions: &mut positions,
-    };
-    Engine::new(config, memory).map(|_| ())
+/// Memory of the given sizes.
+fn small_memory_result(config: Config<'_>, size: MemorySize) -> Result<(), ConfigError> {
+    let mut buffers = EngineBuffers::with_capacity(size);
+    Engine::new(config, buffers.memory()).map(|_| ())
 }
 
 #[test]
@@ -212,9 +196,21 @@ fn configurations_too_large_for_the_memory_are_refused_with_the_need() {
     };
     let windows: Vec<_> = grid.windows().collect();
     let config = config(camera, &windows, SelectionRule::SubtractNext, 20);
-    assert_eq!(small_memory_result(config, 49, 7, 7 * 21), Ok(()));
+    let enough = MemorySize {
+        subapertures: 49,
+        open_windows: 7,
+        pool_entries: 7 * 74,
+        history_pixels: 16 * 112,
+        scratch_entries: 256,
+    };
+    let less = |change: fn(&mut MemorySize)| {
+        let mut size = enough;
+        change(&mut size);
+        small_memory_result(config, size)
+    };
+    assert_eq!(small_memory_result(config, enough), Ok(()));
     assert_eq!(
-        small_memory_result(config, 48, 7, 7 * 21),
+        less(|s| s.subapertures = 48),
         Err(ConfigError::MemoryBudget {
             needed: 49,
             available: 48,
@@ -222,7 +218,7 @@ fn configurations_too_large_for_the_memory_are_refused_with_the_need() {
         })
     );
     assert_eq!(
-        small_memory_result(config, 49, 6, 7 * 21),
+        less(|s| s.open_windows = 6),
         Err(ConfigError::MemoryBudget {
             needed: 7,
             available: 6,
@@ -230,11 +226,27 @@ fn configurations_too_large_for_the_memory_are_refused_with_the_need() {
         })
     );
     assert_eq!(
-        small_memory_result(config, 49, 7, 7 * 21 - 1),
+        less(|s| s.pool_entries = 7 * 74 - 1),
         Err(ConfigError::MemoryBudget {
-            needed: 147,
-            available: 146,
+            needed: 518,
+            available: 517,
             what: MemoryKind::SelectionEntries
+        })
+    );
+    assert_eq!(
+        less(|s| s.history_pixels = 16 * 112 - 1),
+        Err(ConfigError::MemoryBudget {
+            needed: 1792,
+            available: 1791,
+            what: MemoryKind::RowHistory
+        })
+    );
+    assert_eq!(
+        less(|s| s.scratch_entries = 255),
+        Err(ConfigError::MemoryBudget {
+            needed: 256,
+            available: 255,
+            what: MemoryKind::ScratchEntries
         })
     );
     // Validation comes first: an invalid configuration is refused as such.
@@ -243,7 +255,7 @@ fn configurations_too_large_for_the_memory_are_refused_with_the_need() {
         ..config
     };
     assert_eq!(
-        small_memory_result(bad, 49, 7, 147),
+        small_memory_result(bad, enough),
         Err(ConfigError::CameraSize {
             width: 0,
             height: 112

@@ -134,6 +134,8 @@ fn fake_device(schema: u64) -> (String, thread::JoinHandle<()>, TTYPort) {
                                 max_camera_pixels: 0,
                                 max_open_windows: 8,
                                 pool_entries: 64,
+                                history_pixels: 0,
+                                scratch_entries: 0,
                                 max_results_per_row: 8,
                                 max_frame_bytes: MAX_FRAME_LEN as u32,
                                 pixel_source: PixelSourceKind::Link,

@@ -15,7 +15,7 @@
 //! and runs it:
 //!
 //! ```ignore
-//! type Storage = DeviceStorage<256, { 128 * 128 }, 16, 16 * 21, 64>;
+//! type Storage = DeviceStorage<256, { 128 * 128 }, 16, { 16 * 74 }, { 16 * 128 }, 256, 64>;
 //! static STORAGE: ConstStaticCell<Storage> = ConstStaticCell::new(Storage::new());
 //!
 //! let mut device = Device::new(uart, LinkOnly, STORAGE.take().borrow(), "qemu-mps2-an386");
@@ -179,6 +179,8 @@ impl<'d, T: Read + Write, C: PixelSource> Device<'d, T, C> {
             max_camera_pixels: saturate(max_camera_pixels),
             max_open_windows: saturate(engine_capacity.open_windows),
             pool_entries: saturate(engine_capacity.pool_entries),
+            history_pixels: saturate(engine_capacity.history_pixels),
+            scratch_entries: saturate(engine_capacity.scratch_entries),
             max_results_per_row: saturate(results.len()),
             max_frame_bytes: saturate((rx.len() + 1).min(MAX_FRAME_LEN)),
             pixel_source: source.kind(),
@@ -1015,12 +1017,15 @@ impl OutputSink for QueueSink<'_> {
 fn reborrow<'a>(memory: &'a mut EngineMemory<'_>) -> EngineMemory<'a> {
     EngineMemory {
         order: memory.order,
-        level_filters: memory.level_filters,
+        subapertures: memory.subapertures,
         open: memory.open,
         active: memory.active,
         free: memory.free,
         values: memory.values,
         positions: memory.positions,
+        history: memory.history,
+        scratch: memory.scratch,
+        scratch_positions: memory.scratch_positions,
     }
 }
 

@@ -153,12 +153,13 @@ pub struct DeviceBuffers<'d> {
 /// All of a device's storage in one place, for a `static`:
 /// - `S`: sub-apertures per configuration;
 /// - `P`: camera pixels of the background and gain maps (0: no maps);
-/// - `OPEN`, `ENTRIES`: the engine's open windows and selection pool
-///   entries (see `engine/memory.rs` for the budget);
+/// - `OPEN`, `ENTRIES`, `HISTORY`, `SCRATCH`: the engine's open windows,
+///   candidate pool entries, row-history pixels and scratch entries (see
+///   `engine/memory.rs` for the budget);
 /// - `Q`: results that one camera row may finish (`S` is always enough).
 ///
-/// Bytes: about `2 * (18 * S + 6 * P) + 22 * S + 24 * Q` plus the engine's
-/// `OPEN` and `ENTRIES` and 3 KiB of buffers.
+/// Bytes: about `2 * (18 * S + 6 * P) + 38 * S + 24 * Q` plus the engine's
+/// `OPEN`, `ENTRIES`, `HISTORY` and `SCRATCH` and 3 KiB of buffers.
 ///
 /// Const-constructible, so it can be placed in a `static` without passing
 /// through the stack, e.g. with `static_cell::ConstStaticCell`.
@@ -167,10 +168,12 @@ pub struct DeviceStorage<
     const P: usize,
     const OPEN: usize,
     const ENTRIES: usize,
+    const HISTORY: usize,
+    const SCRATCH: usize,
     const Q: usize,
 > {
     slots: [SlotStorage<S, P>; 2],
-    engine: StaticEngineMemory<S, OPEN, ENTRIES>,
+    engine: StaticEngineMemory<S, OPEN, ENTRIES, HISTORY, SCRATCH>,
     order: [u16; S],
     scratch: [u16; S],
     results: [SubapertureResult; Q],
@@ -179,8 +182,15 @@ pub struct DeviceStorage<
     pixels: [u16; PIXEL_BATCH],
 }
 
-impl<const S: usize, const P: usize, const OPEN: usize, const ENTRIES: usize, const Q: usize>
-    DeviceStorage<S, P, OPEN, ENTRIES, Q>
+impl<
+        const S: usize,
+        const P: usize,
+        const OPEN: usize,
+        const ENTRIES: usize,
+        const HISTORY: usize,
+        const SCRATCH: usize,
+        const Q: usize,
+    > DeviceStorage<S, P, OPEN, ENTRIES, HISTORY, SCRATCH, Q>
 {
     pub const fn new() -> Self {
         DeviceStorage {
@@ -210,8 +220,15 @@ impl<const S: usize, const P: usize, const OPEN: usize, const ENTRIES: usize, co
     }
 }
 
-impl<const S: usize, const P: usize, const OPEN: usize, const ENTRIES: usize, const Q: usize>
-    Default for DeviceStorage<S, P, OPEN, ENTRIES, Q>
+impl<
+        const S: usize,
+        const P: usize,
+        const OPEN: usize,
+        const ENTRIES: usize,
+        const HISTORY: usize,
+        const SCRATCH: usize,
+        const Q: usize,
+    > Default for DeviceStorage<S, P, OPEN, ENTRIES, HISTORY, SCRATCH, Q>
 {
     fn default() -> Self {
         Self::new()

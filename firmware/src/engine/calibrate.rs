@@ -1,10 +1,13 @@
 //! Stage 1: calibration of raw pixels (SPEC.md §2).
 //!
-//! Applied to one run of consecutive pixels of a camera row at a time, in a
-//! single branch-free pass: the configured steps are chosen once per run, and
-//! each combination of maps has its own loop.
+//! Two forms of the same arithmetic: [`Calibrator::calibrate`] for a run of
+//! consecutive pixels (a branch-free pass, one loop per combination of maps),
+//! and [`value`] for one pixel, which the selection's hot loop calls on the
+//! few pixels that pass the pre-filter. [`raw_floor`] turns a calibrated
+//! threshold into the smallest raw value that can reach it in a window, so
+//! that the pre-filter can reject raw pixels without calibrating them.
 
-use brightpix_protocol::Calibration;
+use brightpix_protocol::{Calibration, Config, SubapertureWindow, GAIN_FRACTION_BITS};
 
 /// The calibration maps and threshold of a configuration.
 #[derive(Clone, Copy, Debug)]
@@ -92,4 +95,114 @@ fn store<const THRESHOLD: bool>(
     for (o, d) in out.iter_mut().zip(values) {
         *o = if THRESHOLD && d < threshold { 0 } else { d };
     }
+}
+
+/// Which calibration steps a configuration has, as types, so that each
+/// combination gets its own hot loop.
+pub trait Steps {
+    const BACKGROUND: bool;
+    const GAIN: bool;
+    const THRESHOLD: bool;
+}
+
+/// The steps as const parameters.
+pub struct With<const BACKGROUND: bool, const GAIN: bool, const THRESHOLD: bool>;
+
+impl<const B: bool, const G: bool, const T: bool> Steps for With<B, G, T> {
+    const BACKGROUND: bool = B;
+    const GAIN: bool = G;
+    const THRESHOLD: bool = T;
+}
+
+/// The calibrated value of raw pixel `r` at row-major index `pixel`
+/// (SPEC.md §2). The steps in `S` must be those `c` has.
+#[inline(always)]
+pub fn value<S: Steps>(c: &Calibration<'_>, r: u16, pixel: usize) -> i32 {
+    let mut d = (r as i32) << 4;
+    if S::BACKGROUND {
+        if let Some(background) = c.background {
+            d -= background[pixel];
+        }
+    }
+    if S::GAIN {
+        if let Some(gain) = c.gain {
+            d = ((d as i64 * gain[pixel] as i64) >> GAIN_FRACTION_BITS) as i32;
+        }
+    }
+    if S::THRESHOLD {
+        if let Some(threshold) = c.threshold {
+            if d < threshold {
+                d = 0;
+            }
+        }
+    }
+    d
+}
+
+/// What the pre-filter needs to know of a window's calibration maps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct WindowBounds {
+    /// Smallest background over the window (0 without a map).
+    pub background_min: i32,
+    /// Largest gain over the window (4096, a gain of 1, without a map).
+    pub gain_max: u16,
+}
+
+impl WindowBounds {
+    pub const NONE: WindowBounds = WindowBounds {
+        background_min: 0,
+        gain_max: 1 << GAIN_FRACTION_BITS,
+    };
+
+    /// The bounds of `window` over `config`'s maps.
+    pub fn of(config: &Config<'_>, window: &SubapertureWindow) -> WindowBounds {
+        let width = config.camera.width as usize;
+        let rows = (window.y as usize..window.y as usize + window.height as usize)
+            .map(|y| y * width + window.x as usize..y * width + window.end_column() as usize);
+        let c = &config.calibration;
+        WindowBounds {
+            background_min: c.background.map_or(0, |b| {
+                rows.clone()
+                    .flat_map(|run| b[run].iter().copied())
+                    .min()
+                    .unwrap_or(0)
+            }),
+            gain_max: c.gain.map_or(1 << GAIN_FRACTION_BITS, |g| {
+                rows.flat_map(|run| g[run].iter().copied())
+                    .max()
+                    .unwrap_or(0)
+            }),
+        }
+    }
+}
+
+/// No raw value passes: above any 16-bit pixel.
+pub const FLOOR_NONE: u32 = 1 << 16;
+
+/// The smallest raw value that can calibrate to `threshold` or more in a
+/// window with `bounds` (0: any; [`FLOOR_NONE`]: none). Conservative: every
+/// pixel whose calibrated value is `>= threshold` has `r >= floor`, some
+/// below it may too.
+///
+/// Without a gain map, `16 r - B >= t` needs `16 r >= t + min B`. With
+/// one and `t > 0`, `((16 r - B) G) >> 12 >= t` needs `16 r - B > 0` and
+/// `(16 r - B) max G >= 4096 t`. A fixed threshold only zeroes values, so
+/// it matters only for `t <= 0` (a zeroed pixel, 0, then passes).
+pub fn raw_floor(c: &Calibration<'_>, bounds: WindowBounds, threshold: i32) -> u32 {
+    if threshold == i32::MIN || (threshold <= 0 && (c.threshold.is_some() || c.gain.is_some())) {
+        return 0;
+    }
+    let needed = if c.gain.is_some() {
+        // threshold > 0 here.
+        if bounds.gain_max == 0 {
+            return FLOOR_NONE;
+        }
+        let scaled = (threshold as i64) << GAIN_FRACTION_BITS;
+        (scaled + bounds.gain_max as i64 - 1) / bounds.gain_max as i64
+    } else {
+        threshold as i64
+    };
+    // ceil((needed + min B) / 16), floor division by the arithmetic shift.
+    let floor = (needed + bounds.background_min as i64 + 15) >> 4;
+    floor.clamp(0, FLOOR_NONE as i64) as u32
 }

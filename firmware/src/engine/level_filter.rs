@@ -2,28 +2,30 @@
 
 use brightpix_protocol::LEVEL_FILTER_FRACTION_BITS;
 
-/// One sub-aperture's filtered level, in 2^-8 of a calibrated unit.
+/// One sub-aperture's filtered level `F`, in 2^-8 of a calibrated unit.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct LevelFilterState {
-    state: i64,
-    ready: bool,
+    /// `F ^ i64::MIN`: all zero bits (the reset state, so that a `static`
+    /// of them lands in `.bss`) mean `ready = false`, which no `F` can be
+    /// mistaken for since SPEC.md §4 bounds `|F| < 2^33`.
+    biased: i64,
 }
 
+const BIAS: i64 = i64::MIN;
+
 impl LevelFilterState {
-    pub const RESET: LevelFilterState = LevelFilterState {
-        state: 0,
-        ready: false,
-    };
+    pub const RESET: LevelFilterState = LevelFilterState { biased: 0 };
 
     /// Feeds this frame's instantaneous level; returns the level to subtract.
     pub fn update(&mut self, level: Option<i32>, gain_shift: u8) -> Option<i32> {
         let target = (level? as i64) << LEVEL_FILTER_FRACTION_BITS;
-        if self.ready {
-            self.state += (target - self.state) >> gain_shift;
+        let state = if self.biased == 0 {
+            target
         } else {
-            self.state = target;
-            self.ready = true;
-        }
-        Some((self.state >> LEVEL_FILTER_FRACTION_BITS) as i32)
+            let state = self.biased ^ BIAS;
+            state + ((target - state) >> gain_shift)
+        };
+        self.biased = state ^ BIAS;
+        Some((state >> LEVEL_FILTER_FRACTION_BITS) as i32)
     }
 }

@@ -1,111 +1,156 @@
 //! The engine's memory: caller-provided, fixed-size, no heap.
 //!
 //! Budget (SPEC.md does not depend on it; validation does):
-//! - per configured sub-aperture: 2 bytes (raster order) + 16 bytes (level
-//!   filter state);
+//! - per configured sub-aperture: 2 bytes (raster order) +
+//!   `size_of::<SubapertureState>()` (level filter, seed, map bounds);
 //! - per simultaneously open window (a window is open from its first row to
 //!   its last, so a regular grid has one grid row of windows open):
 //!   `size_of::<OpenWindow>()` + 4 bytes (active list, free list);
-//! - per open window, a pool slot of `stride` entries of 6 bytes (value +
-//!   position), `stride = max(C + M)` over windows, where `C = N` (`N + 1`
-//!   for subtract-next; 0 without selection) and `M` is subtract-mean's count.
+//! - per open window, a candidate buffer of `stride` entries of 6 bytes
+//!   (value + position), `stride` the largest `select::buffer_capacity`
+//!   over the windows (about `2 (N + 1) + 32`; 0 without selection);
+//! - a row history: the last `H` camera rows, `H` the tallest window that
+//!   selects, 2 bytes per pixel, from which a window is rescanned when its
+//!   seed left out a pixel it needed;
+//! - scratch for the selection and a rescan: 10 bytes per pixel of the
+//!   largest window that selects (at least `stride`).
 //!
-//! E.g. an 80x80 grid of 16x16 windows (6400 sub-apertures, ELT class),
-//! subtract-next N = 20: 115 KiB for the sub-apertures, 80 open windows,
-//! 80 x 21 pool entries (10 KiB).
+//! E.g. CANARY (112x112, 7x7 windows of 16x16, subtract-next N = 20):
+//! 49 sub-apertures, 7 open windows, 7 x 74 candidate entries, 16 x 112
+//! history pixels (3.5 KiB), 256 scratch entries. An 80x80 grid of 16x16
+//! windows (6400 sub-apertures, ELT class): 80 open windows, 80 x 74
+//! entries (35 KiB), 16 x 1280 history pixels (40 KiB).
 
-use super::level_filter::LevelFilterState;
-use super::stream::OpenWindow;
+use super::window::{OpenWindow, SubapertureState};
 
 /// Borrowed storage for an [`Engine`](super::Engine).
 pub struct EngineMemory<'m> {
     /// One per sub-aperture: windows sorted by first row, then column.
     pub order: &'m mut [u16],
     /// One per sub-aperture.
-    pub level_filters: &'m mut [LevelFilterState],
+    pub subapertures: &'m mut [SubapertureState],
     /// One per simultaneously open window.
     pub open: &'m mut [OpenWindow],
     /// Same length as `open`.
     pub active: &'m mut [u16],
     /// Same length as `open`.
     pub free: &'m mut [u16],
-    /// Selection pool: heap values and subtract-mean's values.
+    /// Candidate buffers: values.
     pub values: &'m mut [i32],
-    /// Same length as `values`.
+    /// Same length as `values`: positions.
     pub positions: &'m mut [u16],
+    /// The last camera rows, row-major.
+    pub history: &'m mut [u16],
+    /// Scratch values, twice the scratch entries.
+    pub scratch: &'m mut [i32],
+    /// Scratch positions, one per scratch entry.
+    pub scratch_positions: &'m mut [u16],
 }
 
 impl EngineMemory<'_> {
-    /// How many sub-apertures, open windows and pool entries this memory holds.
+    /// How much of each kind this memory holds.
     pub fn capacity(&self) -> MemorySize {
         MemorySize {
-            subapertures: self.order.len().min(self.level_filters.len()),
+            subapertures: self.order.len().min(self.subapertures.len()),
             open_windows: self.open.len().min(self.active.len()).min(self.free.len()),
             pool_entries: self.values.len().min(self.positions.len()),
+            history_pixels: self.history.len(),
+            scratch_entries: (self.scratch.len() / 2).min(self.scratch_positions.len()),
         }
     }
 }
 
-/// Sizes of the three kinds of engine memory.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Sizes of the kinds of engine memory.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct MemorySize {
     pub subapertures: usize,
     pub open_windows: usize,
     pub pool_entries: usize,
+    pub history_pixels: usize,
+    pub scratch_entries: usize,
 }
 
 impl MemorySize {
     /// Bytes these sizes take.
     pub const fn bytes(&self) -> usize {
-        self.subapertures * (2 + core::mem::size_of::<LevelFilterState>())
+        self.subapertures * (2 + core::mem::size_of::<SubapertureState>())
             + self.open_windows * (core::mem::size_of::<OpenWindow>() + 4)
             + self.pool_entries * 6
+            + self.history_pixels * 2
+            + self.scratch_entries * 10
     }
 }
 
-/// Memory for a board, sized at compile time, placeable in a `static`.
-pub struct StaticEngineMemory<const SUBAPERTURES: usize, const OPEN: usize, const ENTRIES: usize> {
+/// Memory for a board, sized at compile time, placeable in a `static`:
+/// `SUBAPERTURES`, `OPEN` windows, `ENTRIES` candidate entries, `HISTORY`
+/// row-history pixels and `SCRATCH` scratch entries.
+pub struct StaticEngineMemory<
+    const SUBAPERTURES: usize,
+    const OPEN: usize,
+    const ENTRIES: usize,
+    const HISTORY: usize,
+    const SCRATCH: usize,
+> {
     order: [u16; SUBAPERTURES],
-    level_filters: [LevelFilterState; SUBAPERTURES],
+    subapertures: [SubapertureState; SUBAPERTURES],
     open: [OpenWindow; OPEN],
     active: [u16; OPEN],
     free: [u16; OPEN],
     values: [i32; ENTRIES],
     positions: [u16; ENTRIES],
+    history: [u16; HISTORY],
+    scratch: [[i32; 2]; SCRATCH],
+    scratch_positions: [u16; SCRATCH],
 }
 
-impl<const SUBAPERTURES: usize, const OPEN: usize, const ENTRIES: usize> Default
-    for StaticEngineMemory<SUBAPERTURES, OPEN, ENTRIES>
+impl<
+        const SUBAPERTURES: usize,
+        const OPEN: usize,
+        const ENTRIES: usize,
+        const HISTORY: usize,
+        const SCRATCH: usize,
+    > Default for StaticEngineMemory<SUBAPERTURES, OPEN, ENTRIES, HISTORY, SCRATCH>
 {
     fn default() -> Self {
         Self::new()
     }
 }
 
-impl<const SUBAPERTURES: usize, const OPEN: usize, const ENTRIES: usize>
-    StaticEngineMemory<SUBAPERTURES, OPEN, ENTRIES>
+impl<
+        const SUBAPERTURES: usize,
+        const OPEN: usize,
+        const ENTRIES: usize,
+        const HISTORY: usize,
+        const SCRATCH: usize,
+    > StaticEngineMemory<SUBAPERTURES, OPEN, ENTRIES, HISTORY, SCRATCH>
 {
     pub const fn new() -> Self {
         StaticEngineMemory {
             order: [0; SUBAPERTURES],
-            level_filters: [LevelFilterState::RESET; SUBAPERTURES],
+            subapertures: [SubapertureState::RESET; SUBAPERTURES],
             open: [OpenWindow::CLOSED; OPEN],
             active: [0; OPEN],
             free: [0; OPEN],
             values: [0; ENTRIES],
             positions: [0; ENTRIES],
+            history: [0; HISTORY],
+            scratch: [[0; 2]; SCRATCH],
+            scratch_positions: [0; SCRATCH],
         }
     }
 
     pub fn borrow(&mut self) -> EngineMemory<'_> {
         EngineMemory {
             order: &mut self.order,
-            level_filters: &mut self.level_filters,
+            subapertures: &mut self.subapertures,
             open: &mut self.open,
             active: &mut self.active,
             free: &mut self.free,
             values: &mut self.values,
             positions: &mut self.positions,
+            history: &mut self.history,
+            scratch: self.scratch.as_flattened_mut(),
+            scratch_positions: &mut self.scratch_positions,
         }
     }
 }

@@ -1,462 +1,562 @@
-//! Stage 2: streaming selection of a window's brightest pixels (SPEC.md §3).
+//! Stage 2: selection of a window's brightest pixels (SPEC.md §3), from a
+//! set of *candidates*.
 //!
-//! Each open window keeps a min-heap of its `C` brightest calibrated values so
-//! far (`C = N`, or `N + 1` for `subtract-next`) with their positions, in a
-//! slot of the engine's pool. A pixel below the heap minimum is rejected with
-//! one comparison, which is the common case once a window's heap is full;
-//! the minimum is kept in the window's state, so a whole row segment below
-//! it is rejected by one branch-free pass, without touching the pool.
+//! An open window keeps the pixels seen so far whose calibrated value is at
+//! or above its admission threshold `low`, sorted into four *tiers* around a
+//! second value, the *hint* (`low <= hint`), the sub-aperture's cutoff in its
+//! previous frame:
 //!
-//! Ties are exact without buffering: pixels equal to the heap minimum that do
-//! not fit in the heap go to a *tie bucket* (count and coordinate sums; their
-//! value is the heap minimum). Whatever leaves the heap and bucket for good is
-//! strictly below the final `v(N)` and is remembered only as the rule needs:
-//! its maximum (`subtract-next-distinct`) or its `M` largest values in a
-//! second small heap (`subtract-mean`). Invariants, for a full heap:
-//! - every pixel `> min` is in the heap;
-//! - the bucket holds exactly the pixels `== min` that are not in the heap
-//!   (it is emptied into "below" whenever the minimum rises);
-//! - "below" has seen exactly the other pixels.
+//! | tier | pixels | kept as |
+//! |---|---|---|
+//! | front | `p > hint` | value and position, in the candidate buffer (from its start) |
+//! | hint ties | `p == hint` | count and coordinate sums |
+//! | back | `low < p < hint` | value and position, in the candidate buffer (from its end) |
+//! | low ties | `p == low` (when `low < hint`) | count and coordinate sums |
 //!
-//! At the end of the window, the heap minimum is `v(C)` and heap + bucket is
-//! `{p >= v(C)}`, which is all each rule needs.
+//! Pixels below `low` are not kept. Invariant: every pixel seen so far at or
+//! above `low` is in its tier. So the tiers hold the top of the window's
+//! sorted values exactly, down to `low`, already partitioned at the hint.
+//!
+//! Everything a rule needs lies at or above a *cutoff* that only rises as
+//! pixels arrive: `v(N+1)` for `subtract-next`, `v(N)` for `threshold`, the
+//! level for `subtract-next-distinct`, the smallest averaged value for
+//! `subtract-mean`. Since the spot changes little between frames, the cutoff
+//! is usually the hint itself or close to it: the front then holds about N
+//! pixels and the rule's order statistic is found in the hint ties or by a
+//! short partial selection, never a sort.
+//!
+//! `low` (the hint less a margin, see [`super::seed`]) is a guess; pixels
+//! below it are never calibrated, which is what makes the engine fast. As
+//! soon as the front and hint ties alone prove the cutoff is at or above the
+//! hint ([`Tiers::covers_hint`]), the back tier is dropped and `low` raised
+//! to the hint, so the rest of the window is filtered harder. Two things can
+//! go wrong, and neither changes a result:
+//! - the buffer fills: [`compact`] raises `low` to the cutoff of the
+//!   candidates so far, dropping only values no rule can need any more; if
+//!   nothing can be dropped the window is marked for a rescan;
+//! - `low` was too high, so at the window's end the candidates do not reach
+//!   the cutoff: the window is *rescanned* from the engine's row history,
+//!   every pixel this time (see `stream.rs`).
 
 use super::centroid::Moments;
-use super::level_filter::LevelFilterState;
 use brightpix_protocol::SelectionRule;
 
-/// Lower than any calibrated value (|p| < 2^25): "nothing below".
-const NOTHING: i32 = i32::MIN;
-
 /// Bits of the column in a packed window position `(j << 6) | i`.
-const COLUMN_BITS: u16 = 6;
+pub const COLUMN_BITS: u16 = 6;
 const COLUMN_MASK: u16 = (1 << COLUMN_BITS) - 1;
 
+/// A window position `(i, j)` packed into 12 bits.
 #[inline(always)]
-fn pack(i: u16, j: u16) -> u16 {
+pub fn pack(i: u16, j: u16) -> u16 {
     (j << COLUMN_BITS) | i
 }
 
-/// How a rule treats the pixels around `v(N)`; resolved at compile time so
-/// each rule gets its own hot loop.
-pub trait Rule {
-    const RULE: RuleKind;
-    /// Heap entries beyond N.
-    const EXTRA: u16 = match Self::RULE {
-        RuleKind::SubtractNext => 1,
-        _ => 0,
-    };
-    /// Whether pixels equal to `v(N)` beyond the heap are kept.
-    const KEEPS_TIES: bool = !matches!(Self::RULE, RuleKind::SubtractNext);
+#[inline(always)]
+fn column(position: u16) -> u16 {
+    position & COLUMN_MASK
 }
 
-#[derive(Clone, Copy, PartialEq, Eq, Debug)]
-pub enum RuleKind {
-    Threshold,
-    SubtractNext,
-    SubtractNextDistinct,
-    SubtractMean,
+#[inline(always)]
+fn row(position: u16) -> u16 {
+    position >> COLUMN_BITS
 }
 
-pub struct ThresholdRule;
-pub struct SubtractNextRule;
-pub struct SubtractNextDistinctRule;
-pub struct SubtractMeanRule;
-impl Rule for ThresholdRule {
-    const RULE: RuleKind = RuleKind::Threshold;
-}
-impl Rule for SubtractNextRule {
-    const RULE: RuleKind = RuleKind::SubtractNext;
-}
-impl Rule for SubtractNextDistinctRule {
-    const RULE: RuleKind = RuleKind::SubtractNextDistinct;
-}
-impl Rule for SubtractMeanRule {
-    const RULE: RuleKind = RuleKind::SubtractMean;
+/// The selection parameters of one window.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct WindowRule {
+    pub rule: SelectionRule,
+    /// N (`1 <= N < pixels`).
+    pub n: u16,
+    /// Pixels in the window.
+    pub pixels: u16,
 }
 
-/// Heap capacity for a window of `pixels` pixels selecting `n`: 0 means no
-/// selection (`N >= n`, SPEC.md §3).
-pub fn heap_capacity(rule: SelectionRule, n: u16, pixels: usize) -> u16 {
+/// Candidate buffer entries a window of `pixels` pixels selecting `n` with
+/// `rule` is given: 0 without selection (`N >= pixels`, SPEC.md §3).
+///
+/// Room for about twice what the rule needs, so that a `low` a little low
+/// fills it rarely and a compaction frees at least half of it; never more
+/// than the window's pixels (then it never fills).
+pub fn buffer_capacity(rule: SelectionRule, n: u16, pixels: usize) -> u16 {
     if n as usize >= pixels {
-        0
-    } else if rule == SelectionRule::SubtractNext {
-        n + 1
-    } else {
-        n
+        return 0;
     }
+    let needed = n as usize + below_count(rule);
+    (2 * needed + 32).min(pixels) as u16
 }
 
-/// Pool entries beyond the heap: the "below" heap of `subtract-mean`.
-pub fn below_capacity(rule: SelectionRule, heap_capacity: u16) -> u16 {
+/// Values below `v(N)` a rule uses.
+fn below_count(rule: SelectionRule) -> usize {
     match rule {
-        SelectionRule::SubtractMean { count } if heap_capacity > 0 => count,
-        _ => 0,
+        SelectionRule::SubtractMean { count } => count as usize,
+        SelectionRule::Threshold => 0,
+        _ => 1,
     }
 }
 
-/// The slot of the engine's pool that an open window uses.
-pub struct Slot<'p> {
-    pub heap_values: &'p mut [i32],
-    pub heap_positions: &'p mut [u16],
-    /// `subtract-mean`'s min-heap of the largest values below `v(N)`.
-    pub below: &'p mut [i32],
+/// Pixels of one value that are not in the buffer: their count and
+/// coordinate sums.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Ties {
+    pub count: u16,
+    pub sum_i: u32,
+    pub sum_j: u32,
 }
 
-impl<'p> Slot<'p> {
-    /// The slot at `base` of the pool: a heap of `capacity` entries, then
-    /// `below` entries for subtract-mean.
-    #[inline(always)]
-    pub fn at(
-        values: &'p mut [i32],
-        positions: &'p mut [u16],
-        base: usize,
-        capacity: usize,
-        below: usize,
-    ) -> Self {
-        let (heap_values, below) = values[base..][..capacity + below].split_at_mut(capacity);
-        Slot {
-            heap_values,
-            heap_positions: &mut positions[base..][..capacity],
-            below,
-        }
-    }
-}
-
-/// Selection state of one open window (the pool slot holds the heap).
-#[derive(Clone, Copy, Debug)]
-pub struct SelectionState {
-    /// Heap capacity C; 0 when the window does no selection.
-    capacity: u16,
-    len: u16,
-    below_len: u16,
-    tie_count: u16,
-    /// The heap minimum, kept here once the heap is full so that rejecting
-    /// a segment needs no access to the pool.
-    min: i32,
-    tie_sum_i: u32,
-    tie_sum_j: u32,
-    below_max: i32,
-    /// Weighted sums, used directly when there is no selection.
-    moments: Moments,
-}
-
-impl SelectionState {
-    pub const EMPTY: SelectionState = SelectionState {
-        capacity: 0,
-        len: 0,
-        below_len: 0,
-        tie_count: 0,
-        min: NOTHING,
-        tie_sum_i: 0,
-        tie_sum_j: 0,
-        below_max: NOTHING,
-        moments: Moments::ZERO,
+impl Ties {
+    pub const NONE: Ties = Ties {
+        count: 0,
+        sum_i: 0,
+        sum_j: 0,
     };
 
-    pub fn new(capacity: u16) -> Self {
-        SelectionState {
-            capacity,
-            ..Self::EMPTY
-        }
-    }
-
-    /// Heap capacity C (0: no selection).
-    pub fn capacity(&self) -> u16 {
-        self.capacity
-    }
-
-    /// Whether the heap is full, so that [`push`](Self::push) can reject a
-    /// segment whose maximum is below the minimum without the pool.
     #[inline(always)]
-    pub fn is_full(&self) -> bool {
-        self.len == self.capacity
+    pub fn add(&mut self, position: u16) {
+        self.count += 1;
+        self.sum_i += column(position) as u32;
+        self.sum_j += row(position) as u32;
     }
+}
 
-    /// Whether a full heap rejects every pixel of a segment: all are below
-    /// `v(C)` so far (or equal to it for `subtract-next`, whose bucket is
-    /// not kept). If so, returns what [`reject`](Self::reject) needs: the
-    /// segment's maximum for `subtract-next-distinct`.
+/// What the candidates say about a window: its kept set, its level, and the
+/// cutoff below which no value matters.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Cut {
+    /// Kept pixels are `p > bound` (`strict`, subtract-next) or `p >= bound`.
+    pub bound: i32,
+    pub strict: bool,
+    /// The instantaneous level `l` (SPEC.md §3); `None`: nothing subtracted.
+    pub level: Option<i32>,
+    /// Every value the rule used is at or above this; values below it can
+    /// never matter, whatever pixels come next.
+    pub cutoff: i32,
+}
+
+impl Cut {
     #[inline(always)]
-    pub fn rejects<R: Rule>(&self, values: &[i32]) -> Option<i32> {
-        if R::RULE == RuleKind::SubtractNextDistinct {
-            let max = values.iter().copied().fold(NOTHING, i32::max);
-            return (max < self.min).then_some(max);
-        }
-        // A pixel is accepted iff p > t. |t|, |p| <= 2^25, so t - p cannot
-        // overflow, and its sign bit is set exactly for accepted pixels: one
-        // subtraction and one OR per pixel, no branch.
-        let t = if R::KEEPS_TIES {
-            self.min - 1
+    pub fn keeps(&self, p: i32) -> bool {
+        if self.strict {
+            p > self.bound
         } else {
-            self.min
-        };
-        let accepted = values.iter().fold(0, |any, &p| any | (t - p));
-        (accepted >= 0).then_some(NOTHING)
+            p >= self.bound
+        }
     }
+}
 
-    /// A segment that [`rejects`](Self::rejects) returned `Some(max)` for:
-    /// only what the rule remembers below `v(N)` changes.
+/// The candidates do not reach the cutoff: some value the rule needs is
+/// below the admission threshold.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TooShallow;
+
+/// A window's candidates, tier by tier (see the module documentation):
+/// `front` values `> hint`, `hint_ties` copies of `hint`, `back` values in
+/// `(low, hint)`, `low_ties` copies of `low` (`low < hint`, or no low ties).
+pub struct Tiers<'a> {
+    pub front: &'a [i32],
+    pub hint: i32,
+    pub hint_ties: u16,
+    pub back: &'a [i32],
+    pub low: i32,
+    pub low_ties: u16,
+    /// No pixel of the window was left out: the tiers are all of it.
+    pub complete: bool,
+    /// For the queries that permute values: as long as the longer tier.
+    pub scratch: &'a mut [i32],
+}
+
+impl Tiers<'_> {
+    /// Whether the front and hint ties alone prove the rule's cutoff is at
+    /// or above the hint (so nothing below the hint can matter): for a rule
+    /// selecting `n`.
     #[inline(always)]
-    pub fn reject<R: Rule>(&mut self, below: &mut [i32], values: &[i32], max: i32) {
-        match R::RULE {
-            RuleKind::SubtractNextDistinct => self.below_max = self.below_max.max(max),
-            RuleKind::SubtractMean => {
-                for &p in values {
-                    self.drop_below::<R>(below, p);
-                }
-            }
-            _ => {}
+    pub fn covers_hint(rule: SelectionRule, n: u16, front: u16, hint_ties: u16) -> bool {
+        let (n, front, hint_ties) = (n as u32, front as u32, hint_ties as u32);
+        match rule {
+            // v(N+1) >= hint.
+            SelectionRule::SubtractNext => front + hint_ties > n,
+            // v(N) >= hint.
+            SelectionRule::Threshold => front + hint_ties >= n,
+            // v(N) > hint, and hint itself is below v(N).
+            SelectionRule::SubtractNextDistinct => front >= n && hint_ties >= 1,
+            // v(N) > hint, and M copies of hint below v(N).
+            SelectionRule::SubtractMean { count } => front >= n && hint_ties >= count as u32,
         }
     }
 
-    /// Adds the calibrated values of one row segment of the window: columns
-    /// `i0 ..` of window row `j`.
+    /// Whether, once [`covers_hint`](Self::covers_hint) holds, more pixels
+    /// equal to the hint can no longer matter (so admission can become
+    /// `p > hint`): their count is only needed up to what the front and hint
+    /// ties already prove, and they are not kept, since the kept set is then
+    /// above the hint. Not so for `threshold` while `v(N)` may be the hint.
     #[inline(always)]
-    pub fn push<R: Rule>(&mut self, slot: &mut Slot<'_>, values: &[i32], i0: u16, j: u16) {
-        if self.capacity == 0 {
-            self.moments.add_row(values, i0, j);
+    pub fn hint_ties_settled(rule: SelectionRule, n: u16, front: u16) -> bool {
+        match rule {
+            SelectionRule::Threshold => front >= n,
+            _ => true,
+        }
+    }
+
+    /// The k-th largest candidate (1-based), duplicates counted.
+    fn kth_largest(&mut self, k: usize) -> Result<i32, TooShallow> {
+        let front = self.front.len();
+        let hint = front + self.hint_ties as usize;
+        let back = hint + self.back.len();
+        if k <= front {
+            Ok(kth_largest(self.front, k, self.scratch))
+        } else if k <= hint {
+            Ok(self.hint)
+        } else if k <= back {
+            Ok(kth_largest(self.back, k - hint, self.scratch))
+        } else if k <= back + self.low_ties as usize {
+            Ok(self.low)
+        } else {
+            Err(TooShallow)
+        }
+    }
+
+    /// The largest candidate strictly below `v`.
+    fn largest_below(&self, v: i32) -> Option<i32> {
+        let below = |values: &[i32]| values.iter().copied().filter(|&x| x < v).max();
+        below(self.front)
+            .or((self.hint_ties > 0 && self.hint < v).then_some(self.hint))
+            .or_else(|| below(self.back))
+            .or((self.low_ties > 0 && self.low < v).then_some(self.low))
+    }
+
+    /// The sum of the `m` largest candidates strictly below `v` (or of all
+    /// of them if fewer), how many that is, and the smallest of them (`v`
+    /// if none). The tiers are in decreasing order, so they are taken from
+    /// in turn.
+    fn top_below(&mut self, v: i32, m: usize) -> (i64, usize, i32) {
+        let mut top = Top {
+            v,
+            m,
+            sum: 0,
+            taken: 0,
+            smallest: v,
+        };
+        top.values(self.front, self.scratch);
+        top.ties(self.hint, self.hint_ties);
+        top.values(self.back, self.scratch);
+        top.ties(self.low, self.low_ties);
+        (top.sum, top.taken, top.smallest)
+    }
+}
+
+/// The running state of [`Tiers::top_below`].
+struct Top {
+    v: i32,
+    m: usize,
+    sum: i64,
+    taken: usize,
+    smallest: i32,
+}
+
+impl Top {
+    fn values(&mut self, values: &[i32], scratch: &mut [i32]) {
+        // The values below v, copied.
+        let mut len = 0;
+        for &x in values {
+            if x < self.v {
+                scratch[len] = x;
+                len += 1;
+            }
+        }
+        let want = (self.m - self.taken).min(len);
+        if want == 0 {
             return;
         }
-        let capacity = self.capacity as usize;
-        let heap = &mut *slot.heap_values;
-        let positions = &mut slot.heap_positions[..heap.len()];
-        let mut rest = values;
-        let mut i = i0;
-        // Fill phase: the first C pixels of the window go straight in.
-        if (self.len as usize) < capacity {
-            let len = self.len as usize;
-            let take = (capacity - len).min(rest.len());
-            let (fill, after) = rest.split_at(take);
-            for ((h, p), (&v, k)) in heap[len..]
-                .iter_mut()
-                .zip(&mut positions[len..])
-                .zip(fill.iter().zip(0u16..))
-            {
-                *h = v;
-                *p = pack(i + k, j);
-            }
-            self.len += take as u16;
-            i += take as u16;
-            rest = after;
-            if (self.len as usize) < capacity {
-                return;
-            }
-            heapify(heap, positions);
-            self.min = heap[0];
+        let below = &mut scratch[..len];
+        let w = kth_largest_in_place(below, want);
+        // The `want` largest: those above w, and copies of w.
+        let (above_sum, above) = below
+            .iter()
+            .filter(|&&x| x > w)
+            .fold((0i64, 0usize), |(s, c), &x| (s + x as i64, c + 1));
+        self.sum += above_sum + w as i64 * (want - above) as i64;
+        self.taken += want;
+        self.smallest = w;
+    }
+
+    fn ties(&mut self, value: i32, count: u16) {
+        let want = (self.m - self.taken).min(count as usize);
+        if want == 0 || value >= self.v {
+            return;
         }
-        let mut min = self.min;
-        for &p in rest {
-            if p > min {
-                let evicted_position = positions[0];
-                let evicted = min;
-                min = replace_min(heap, positions, p, pack(i, j));
-                if R::KEEPS_TIES {
-                    if min == evicted {
-                        self.add_tie(evicted_position);
-                    } else {
-                        // The minimum rose: the bucket and the evicted pixel
-                        // are now strictly below it, for good.
-                        self.flush_ties::<R>(slot.below, evicted);
-                        self.drop_below::<R>(slot.below, evicted);
-                    }
+        self.sum += value as i64 * want as i64;
+        self.taken += want;
+        self.smallest = value;
+    }
+}
+
+/// The k-th largest of `values` (1-based, `k <= len`).
+///
+/// Near either end (the usual case: the cutoff is close to the hint) by one
+/// pass that keeps the few extreme values in a small sorted array; else by
+/// `select_nth_unstable` on a copy in `scratch` (at least `len` entries).
+pub fn kth_largest(values: &[i32], k: usize, scratch: &mut [i32]) -> i32 {
+    let len = values.len();
+    if k <= NEAR || len - k < NEAR {
+        kth_largest_near_ends(values, k)
+    } else {
+        let copy = &mut scratch[..len];
+        copy.copy_from_slice(values);
+        *copy.select_nth_unstable(len - k).1
+    }
+}
+
+/// As [`kth_largest`], permuting `values` instead of copying them.
+fn kth_largest_in_place(values: &mut [i32], k: usize) -> i32 {
+    let len = values.len();
+    if k <= NEAR || len - k < NEAR {
+        kth_largest_near_ends(values, k)
+    } else {
+        *values.select_nth_unstable(len - k).1
+    }
+}
+
+/// Within this many of either end, [`kth_largest`] keeps a small sorted
+/// array in one pass.
+const NEAR: usize = 8;
+
+fn kth_largest_near_ends(values: &[i32], k: usize) -> i32 {
+    if k <= NEAR {
+        extreme::<true>(values, k)
+    } else {
+        extreme::<false>(values, values.len() - k + 1)
+    }
+}
+
+/// The m-th largest (`LARGEST`) or smallest of `values`, `1 <= m <= 8`.
+#[inline(never)]
+fn extreme<const LARGEST: bool>(values: &[i32], m: usize) -> i32 {
+    // best[..filled] sorted from most to least extreme.
+    let mut best = [0i32; 8];
+    let mut filled = 0usize;
+    let beats = |a: i32, b: i32| if LARGEST { a > b } else { a < b };
+    for &x in values {
+        if filled == m {
+            if !beats(x, best[m - 1]) {
+                continue;
+            }
+            filled -= 1;
+        }
+        let mut at = filled;
+        while at > 0 && beats(x, best[at - 1]) {
+            best[at] = best[at - 1];
+            at -= 1;
+        }
+        best[at] = x;
+        filled += 1;
+    }
+    best[m - 1]
+}
+
+/// The kept set, level and cutoff of `rule` over the candidates (SPEC.md §3).
+///
+/// With `complete` false the result holds for the whole window only if it
+/// is `Ok`; with `complete` true it is always `Ok`.
+pub fn cut(rule: &WindowRule, c: &mut Tiers<'_>) -> Result<Cut, TooShallow> {
+    let n = rule.n as usize;
+    match rule.rule {
+        SelectionRule::SubtractNext => {
+            let v = c.kth_largest(n + 1)?;
+            Ok(Cut {
+                bound: v,
+                strict: true,
+                level: Some(v),
+                cutoff: v,
+            })
+        }
+        SelectionRule::Threshold => {
+            let v = c.kth_largest(n)?;
+            Ok(Cut {
+                bound: v,
+                strict: false,
+                level: None,
+                cutoff: v,
+            })
+        }
+        SelectionRule::SubtractNextDistinct => {
+            let v = c.kth_largest(n)?;
+            match c.largest_below(v) {
+                Some(l) => Ok(Cut {
+                    bound: v,
+                    strict: false,
+                    level: Some(l),
+                    cutoff: l,
+                }),
+                None if c.complete => Ok(Cut {
+                    bound: v,
+                    strict: false,
+                    level: None,
+                    cutoff: v,
+                }),
+                None => Err(TooShallow),
+            }
+        }
+        SelectionRule::SubtractMean { count } => {
+            let v = c.kth_largest(n)?;
+            let m = count as usize;
+            let (sum, taken, smallest) = c.top_below(v, m);
+            if taken < m && !c.complete {
+                return Err(TooShallow);
+            }
+            Ok(Cut {
+                bound: v,
+                strict: false,
+                level: (taken > 0).then(|| sum.div_euclid(taken as i64) as i32),
+                cutoff: smallest,
+            })
+        }
+    }
+}
+
+/// The weights of `cut` (with `level`, the filtered level, for subtracting
+/// rules) reduced to centre-of-gravity moments over candidates: `values`
+/// with `positions`, and `ties` copies of `value`.
+#[inline(always)]
+pub fn add_moments(
+    moments: &mut Moments,
+    cut: &Cut,
+    level: Option<i32>,
+    values: &[i32],
+    positions: &[u16],
+) {
+    let positions = &positions[..values.len()];
+    match level {
+        Some(level) => {
+            for (&p, &position) in values.iter().zip(positions) {
+                if cut.keeps(p) {
+                    moments.add((p - level).max(0), column(position), row(position));
                 }
-            } else if R::KEEPS_TIES && p == min {
-                self.add_tie(pack(i, j));
+            }
+        }
+        None => {
+            for (&p, &position) in values.iter().zip(positions) {
+                if cut.keeps(p) {
+                    moments.add(p, column(position), row(position));
+                }
+            }
+        }
+    }
+}
+
+/// The tie bucket's share of the moments (see [`add_moments`]).
+#[inline(always)]
+pub fn add_tie_moments(
+    moments: &mut Moments,
+    cut: &Cut,
+    level: Option<i32>,
+    value: i32,
+    ties: Ties,
+) {
+    if ties.count > 0 && cut.keeps(value) {
+        let w = match level {
+            Some(level) => (value - level).max(0),
+            None => value,
+        };
+        moments.add_group(w, ties.count, ties.sum_i, ties.sum_j);
+    }
+}
+
+/// A window's candidate buffer and tie buckets, as the engine keeps them.
+pub struct Buffer<'a> {
+    /// The whole buffer: front at `[..front]`, back at `[len - back..]`.
+    pub values: &'a mut [i32],
+    pub positions: &'a mut [u16],
+    pub front: usize,
+    pub back: usize,
+    pub hint: i32,
+    pub hint_ties: Ties,
+    pub low: i32,
+    pub low_ties: Ties,
+    /// Admission is `p > low` (the hint), not `p >= low`: see
+    /// [`Tiers::hint_ties_settled`].
+    pub strict: bool,
+}
+
+impl Buffer<'_> {
+    /// Drops the back tier and low ties and raises `low` to the hint, when
+    /// [`Tiers::covers_hint`] allows it.
+    #[inline(always)]
+    pub fn drop_back(&mut self) {
+        self.back = 0;
+        self.low = self.hint;
+        self.low_ties = Ties::NONE;
+    }
+
+    /// [`Tiers::covers_hint`]: whether nothing below the hint matters.
+    #[inline(always)]
+    pub fn covers_hint(&self, rule: &WindowRule) -> bool {
+        Tiers::covers_hint(rule.rule, rule.n, self.front as u16, self.hint_ties.count)
+    }
+
+    /// A full buffer: raises `low` to the cutoff of the candidates so far,
+    /// dropping what falls below it. Returns `false` if nothing can be
+    /// dropped (the window then needs a rescan). `scratch` holds at least
+    /// the buffer's length.
+    pub fn compact(&mut self, rule: &WindowRule, scratch: &mut [i32]) -> bool {
+        let capacity = self.values.len();
+        let (front, back) = (self.front, self.back);
+        let mut tiers = Tiers {
+            front: &self.values[..front],
+            hint: self.hint,
+            hint_ties: self.hint_ties.count,
+            back: &self.values[capacity - back..],
+            low: self.low,
+            low_ties: self.low_ties.count,
+            complete: false,
+            scratch,
+        };
+        let cutoff = match cut(rule, &mut tiers) {
+            Ok(cut) if cut.cutoff > self.low => cut.cutoff,
+            _ => return false,
+        };
+        if cutoff >= self.hint {
+            // Everything at or below the hint but the cutoff's copies goes.
+            let mut ties = if cutoff == self.hint {
+                self.hint_ties
             } else {
-                self.drop_below::<R>(slot.below, p);
-            }
-            i += 1;
-        }
-        self.min = min;
-    }
-
-    #[inline(always)]
-    fn add_tie(&mut self, position: u16) {
-        self.tie_count += 1;
-        self.tie_sum_i += (position & COLUMN_MASK) as u32;
-        self.tie_sum_j += (position >> COLUMN_BITS) as u32;
-    }
-
-    fn flush_ties<R: Rule>(&mut self, below: &mut [i32], value: i32) {
-        if self.tie_count == 0 {
-            return;
-        }
-        match R::RULE {
-            RuleKind::SubtractNextDistinct => self.below_max = self.below_max.max(value),
-            RuleKind::SubtractMean => {
-                for _ in 0..self.tie_count.min(below.len() as u16) {
-                    self.drop_below::<R>(below, value);
+                Ties::NONE
+            };
+            let mut kept = 0;
+            for k in 0..front {
+                let (p, position) = (self.values[k], self.positions[k]);
+                if p > cutoff {
+                    self.values[kept] = p;
+                    self.positions[kept] = position;
+                    kept += 1;
+                } else if p == cutoff {
+                    ties.add(position);
                 }
             }
-            _ => {}
-        }
-        self.tie_count = 0;
-        self.tie_sum_i = 0;
-        self.tie_sum_j = 0;
-    }
-
-    #[inline(always)]
-    fn drop_below<R: Rule>(&mut self, below: &mut [i32], p: i32) {
-        match R::RULE {
-            RuleKind::SubtractNextDistinct => self.below_max = self.below_max.max(p),
-            RuleKind::SubtractMean => {
-                let len = self.below_len as usize;
-                if len < below.len() {
-                    below[len] = p;
-                    sift_up(&mut below[..=len]);
-                    self.below_len += 1;
-                } else if p > below[0] {
-                    below[0] = p;
-                    sift_down_values(below);
-                }
-            }
-            _ => {}
-        }
-    }
-
-    /// The window's last pixel has arrived: weights (SPEC.md §3, with the §4
-    /// filter if any) reduced to the centre-of-gravity moments.
-    pub fn finish<R: Rule>(
-        &self,
-        slot: &Slot<'_>,
-        level_filter: Option<(&mut LevelFilterState, u8)>,
-    ) -> Moments {
-        if self.capacity == 0 {
-            return self.moments;
-        }
-        let capacity = self.capacity as usize;
-        let heap = &slot.heap_values[..capacity];
-        let positions = &slot.heap_positions[..capacity];
-        let min = heap[0];
-        let instantaneous = match R::RULE {
-            RuleKind::Threshold => None,
-            RuleKind::SubtractNext => Some(min),
-            RuleKind::SubtractNextDistinct => (self.below_max != NOTHING).then_some(self.below_max),
-            RuleKind::SubtractMean => {
-                let below = &slot.below[..self.below_len as usize];
-                (!below.is_empty()).then(|| {
-                    let sum: i32 = below.iter().sum();
-                    sum.div_euclid(below.len() as i32)
-                })
-            }
-        };
-        let level = match level_filter {
-            Some((state, gain_shift)) => state.update(instantaneous, gain_shift),
-            None => instantaneous,
-        };
-        let weight = |p: i32| match level {
-            Some(level) => (p - level).max(0),
-            None => p,
-        };
-        let mut moments = Moments::ZERO;
-        for (&p, &position) in heap.iter().zip(positions) {
-            if R::RULE == RuleKind::SubtractNext && p == min {
-                continue; // p <= v(N+1): not kept
-            }
-            moments.add(weight(p), position & COLUMN_MASK, position >> COLUMN_BITS);
-        }
-        if R::KEEPS_TIES && self.tie_count > 0 {
-            moments.add_group(weight(min), self.tie_count, self.tie_sum_i, self.tie_sum_j);
-        }
-        moments
-    }
-}
-
-fn heapify(values: &mut [i32], positions: &mut [u16]) {
-    for start in (0..values.len() / 2).rev() {
-        sift_down(values, positions, start, values[start], positions[start]);
-    }
-}
-
-/// Replaces the minimum of a full heap with `value` (larger than it) and
-/// restores the heap; returns the new minimum.
-#[inline(always)]
-fn replace_min(values: &mut [i32], positions: &mut [u16], value: i32, position: u16) -> i32 {
-    sift_down(values, positions, 0, value, position);
-    values[0]
-}
-
-/// Puts `value` (with `position`) into the hole at `hole` (`< values.len()`)
-/// and sifts it down. The smaller child is chosen without a branch; the only
-/// data-dependent branch is where `value` stops.
-#[inline(always)]
-fn sift_down(values: &mut [i32], positions: &mut [u16], hole: usize, value: i32, position: u16) {
-    let n = values.len();
-    assert!(hole < n && positions.len() >= n);
-    // 1-based indices (children of `k` are `2k` and `2k + 1`, one shift)
-    // through pointers one entry before the slices (wrapping arithmetic: they
-    // point outside them); only indices 1..=n are dereferenced.
-    let v = values.as_mut_ptr().wrapping_sub(1);
-    let p = positions.as_mut_ptr().wrapping_sub(1);
-    // SAFETY: every index `k` dereferenced below is in `1..=n`, i.e. entry
-    // `k - 1 < n` of `values` (length n) and of `positions` (at least n):
-    // `hole` starts in `1..=n` (asserted) and only takes values of `child`
-    // or `left`; `left < n` (so `child <= left + 1 <= n`) and `left <= n`
-    // are checked by the conditions that guard their use.
-    unsafe {
-        let mut hole = hole + 1;
-        let mut left = 2 * hole;
-        while left < n {
-            let (l, r) = (*v.wrapping_add(left), *v.wrapping_add(left + 1));
-            // Branch-free: |values| < 2^25, so `r - l` cannot overflow and
-            // `right` is all ones exactly when `r < l`.
-            let right = (r - l) >> 31;
-            let smaller = l + ((r - l) & right);
-            let child = left + (right & 1) as usize;
-            if smaller >= value {
-                break;
-            }
-            *v.wrapping_add(hole) = smaller;
-            *p.wrapping_add(hole) = *p.wrapping_add(child);
-            hole = child;
-            left = 2 * hole;
-        }
-        // A last single child (the last entry) when n is even.
-        if left == n && *v.wrapping_add(left) < value {
-            *v.wrapping_add(hole) = *v.wrapping_add(left);
-            *p.wrapping_add(hole) = *p.wrapping_add(left);
-            hole = left;
-        }
-        *v.wrapping_add(hole) = value;
-        *p.wrapping_add(hole) = position;
-    }
-}
-
-fn sift_down_values(values: &mut [i32]) {
-    let n = values.len();
-    let mut i = 0;
-    let value = values[0];
-    loop {
-        let left = 2 * i + 1;
-        if left >= n {
-            break;
-        }
-        let right = left + 1;
-        let child = if right < n && values[right] < values[left] {
-            right
+            self.front = kept;
+            self.back = 0;
+            self.strict = false;
+            self.hint = cutoff;
+            self.hint_ties = ties;
+            self.low = cutoff;
+            self.low_ties = Ties::NONE;
         } else {
-            left
-        };
-        if values[child] >= value {
-            break;
+            // The cutoff is in the back tier: only the back changes. Read
+            // from its top down, so writes never pass the reads.
+            let mut ties = Ties::NONE;
+            let mut kept = 0;
+            for k in (capacity - back..capacity).rev() {
+                let (p, position) = (self.values[k], self.positions[k]);
+                if p > cutoff {
+                    self.values[capacity - 1 - kept] = p;
+                    self.positions[capacity - 1 - kept] = position;
+                    kept += 1;
+                } else if p == cutoff {
+                    ties.add(position);
+                }
+            }
+            self.back = kept;
+            self.low = cutoff;
+            self.low_ties = ties;
         }
-        values[i] = values[child];
-        i = child;
+        true
     }
-    values[i] = value;
-}
-
-fn sift_up(values: &mut [i32]) {
-    let mut i = values.len() - 1;
-    let value = values[i];
-    while i > 0 {
-        let parent = (i - 1) / 2;
-        if values[parent] <= value {
-            break;
-        }
-        values[i] = values[parent];
-        i = parent;
-    }
-    values[i] = value;
 }

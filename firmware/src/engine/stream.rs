@@ -1,27 +1,30 @@
-//! The engine: routes pixels, as they arrive in raster order, through
-//! calibration and selection into the windows they belong to, and emits each
-//! sub-aperture's result the moment its last pixel has been seen.
+//! The engine: routes pixels, as they arrive in raster order, to the windows
+//! they belong to, and emits each sub-aperture's result the moment its last
+//! pixel has been seen.
 //!
-//! Windows are opened at their first row (taking a pool slot) and closed after
-//! their last, so only the windows crossing the current row hold state. The
-//! open windows are kept in a list sorted by first column, and a cursor skips
-//! those the current row has already passed, so a chunk touches only the
-//! windows it overlaps, whatever its length.
+//! Windows are opened at their first row (taking a candidate buffer from the
+//! pool) and closed after their last, so only the windows crossing the
+//! current row hold state. The open windows are kept in a list sorted by
+//! first column, and a cursor skips those the current row has already
+//! passed, so a chunk touches only the windows it overlaps, whatever its
+//! length.
+//!
+//! For each window's run of pixels in a row (a *segment*), the pre-filter
+//! first asks whether any raw pixel can reach the window's admission
+//! threshold; usually none can, and the segment costs a few instructions per
+//! pixel pair. Otherwise the pixels that can are calibrated and become
+//! candidates (see `select.rs`). Pixels that belong to no window are only
+//! checked against the camera's bit depth.
 
-use super::calibrate::Calibrator;
-use super::centroid::{Centroider, SubapertureResult};
+use super::calibrate::{self, raw_floor, Calibrator, Steps, WindowBounds, With};
+use super::centroid::{Centroider, Moments, SubapertureResult};
 use super::memory::{EngineMemory, MemorySize};
-use super::select::{
-    below_capacity, heap_capacity, Rule, RuleKind, SelectionState, Slot, SubtractMeanRule,
-    SubtractNextDistinctRule, SubtractNextRule, ThresholdRule,
-};
+use super::prefilter;
+use super::select::{self, buffer_capacity, pack, Buffer, Cut, Tiers, Ties, WindowRule};
+use super::window::{OpenWindow, SubapertureState};
 use brightpix_protocol::{
-    Config, ConfigError, MemoryKind, SelectionRule, SubapertureWindow, MAX_WINDOW_SIDE,
+    Calibration, Config, ConfigError, MemoryKind, SubapertureWindow, MAX_WINDOW_SIDE,
 };
-
-/// Pixels calibrated at once: at least a window's width, so that a block
-/// started at a segment holds all of it.
-const CALIBRATION_BLOCK: usize = 2 * MAX_WINDOW_SIDE as usize;
 
 /// Where results go.
 pub trait OutputSink {
@@ -40,6 +43,7 @@ impl<F: FnMut(SubapertureResult)> OutputSink for F {
 
 /// A frame that cannot be processed (SPEC.md §8).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum FrameError {
     /// A raw pixel above `2^bit_depth - 1`. The frame is abandoned.
     PixelOutOfRange { row: u16, column: u16, value: u16 },
@@ -56,34 +60,18 @@ impl core::fmt::Display for FrameError {
     }
 }
 
-/// A window that has started receiving pixels in this frame.
-#[derive(Clone, Copy, Debug)]
-pub struct OpenWindow {
-    index: u16,
-    x: u16,
-    end_column: u16,
-    y: u16,
-    last_row: u16,
-    width: u16,
-    height: u16,
-    slot: u16,
-    finished: bool,
-    selection: SelectionState,
-}
-
-impl OpenWindow {
-    pub const CLOSED: OpenWindow = OpenWindow {
-        index: 0,
-        x: 0,
-        end_column: 0,
-        y: 0,
-        last_row: 0,
-        width: 0,
-        height: 0,
-        slot: 0,
-        finished: true,
-        selection: SelectionState::EMPTY,
-    };
+/// How often the engine took its slow paths, since it was built. Speed
+/// only: results do not depend on them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct EngineStats {
+    /// Windows finished with selection.
+    pub windows: u32,
+    /// Candidates those windows held at their end (buffer and ties).
+    pub candidates: u32,
+    /// Candidate buffers that filled and were compacted.
+    pub compactions: u32,
+    /// Windows computed again from the row history.
+    pub rescans: u32,
 }
 
 /// The streaming brightest-pixel engine for one configuration.
@@ -92,8 +80,10 @@ pub struct Engine<'c, 'm> {
     calibrator: Calibrator<'c>,
     centroider: Centroider<'c>,
     memory: EngineMemory<'m>,
-    /// Pool entries per open window.
+    /// Candidate entries per open window.
     stride: usize,
+    /// Rows in the history ring (0: no window selects, none kept).
+    history_rows: usize,
     max_raw: u16,
     row: u16,
     column: u16,
@@ -107,23 +97,24 @@ pub struct Engine<'c, 'm> {
     finished_in_row: bool,
     frames: u32,
     needed: MemorySize,
-    /// Calibrated values of a block of the current row part.
-    calibrated: [i32; CALIBRATION_BLOCK],
+    stats: EngineStats,
+    /// Calibrated values of one segment of a window without selection.
+    calibrated: [i32; MAX_WINDOW_SIDE as usize],
 }
 
 impl<'c, 'm> Engine<'c, 'm> {
     /// Validates `config` and checks it fits `memory`; resets the level
-    /// filters (SPEC.md §4). On error nothing is kept (the caller's previous
-    /// engine, if any, is untouched).
+    /// filters (SPEC.md §4) and seeds. On error nothing is kept (the
+    /// caller's previous engine, if any, is untouched).
     pub fn new(config: Config<'c>, memory: EngineMemory<'m>) -> Result<Self, ConfigError> {
         let mut engine = Self::resume(config, memory)?;
         engine.reset_level_filters();
         Ok(engine)
     }
 
-    /// As [`new`](Self::new), but keeps the level-filter state already in
-    /// `memory`: for a caller that re-borrows the memory of an engine it
-    /// built earlier with the same configuration.
+    /// As [`new`](Self::new), but keeps the level-filter state and seeds
+    /// already in `memory`: for a caller that re-borrows the memory of an
+    /// engine it built earlier with the same configuration.
     pub fn resume(config: Config<'c>, memory: EngineMemory<'m>) -> Result<Self, ConfigError> {
         let available = memory.capacity();
         let plan = plan(
@@ -132,12 +123,21 @@ impl<'c, 'm> Engine<'c, 'm> {
             memory.order,
             &mut memory.active[..available.open_windows],
         )?;
+        let maps = config.calibration.background.is_some() || config.calibration.gain.is_some();
+        for (state, window) in memory.subapertures.iter_mut().zip(config.windows) {
+            state.bounds = if maps {
+                WindowBounds::of(&config, window)
+            } else {
+                WindowBounds::NONE
+            };
+        }
         let mut engine = Engine {
             config,
             calibrator: Calibrator::new(config.calibration),
             centroider: Centroider::new(config.centroid),
             memory,
             stride: plan.stride,
+            history_rows: plan.history_rows,
             max_raw: config.camera.max_raw(),
             row: 0,
             column: 0,
@@ -148,7 +148,8 @@ impl<'c, 'm> Engine<'c, 'm> {
             finished_in_row: false,
             frames: 0,
             needed: plan.needed,
-            calibrated: [0; CALIBRATION_BLOCK],
+            stats: EngineStats::default(),
+            calibrated: [0; MAX_WINDOW_SIDE as usize],
         };
         engine.start_frame();
         Ok(engine)
@@ -182,6 +183,11 @@ impl<'c, 'm> Engine<'c, 'm> {
         self.frames
     }
 
+    /// How often the slow paths ran since this engine was built.
+    pub fn stats(&self) -> EngineStats {
+        self.stats
+    }
+
     /// Position of the next expected pixel: (row, column).
     pub fn position(&self) -> (u16, u16) {
         (self.row, self.column)
@@ -192,11 +198,12 @@ impl<'c, 'm> Engine<'c, 'm> {
         self.row == 0 && self.column == 0
     }
 
-    /// Forgets the temporally filtered levels (SPEC.md §4).
+    /// Forgets the temporally filtered levels (SPEC.md §4), and the seeds.
     pub fn reset_level_filters(&mut self) {
         let count = self.config.windows.len();
-        for state in &mut self.memory.level_filters[..count] {
-            *state = super::level_filter::LevelFilterState::RESET;
+        for state in &mut self.memory.subapertures[..count] {
+            state.level = SubapertureState::RESET.level;
+            state.seed = SubapertureState::RESET.seed;
         }
     }
 
@@ -208,17 +215,36 @@ impl<'c, 'm> Engine<'c, 'm> {
     /// Feeds the next pixels of the frame, in raster order, in a chunk of any
     /// length (it may end mid-row or run into the next frame).
     pub fn push(&mut self, pixels: &[u16], sink: &mut impl OutputSink) -> Result<(), FrameError> {
-        match self.config.selection.rule {
-            SelectionRule::Threshold => self.push_with::<ThresholdRule>(pixels, sink),
-            SelectionRule::SubtractNext => self.push_with::<SubtractNextRule>(pixels, sink),
-            SelectionRule::SubtractNextDistinct => {
-                self.push_with::<SubtractNextDistinctRule>(pixels, sink)
-            }
-            SelectionRule::SubtractMean { .. } => self.push_with::<SubtractMeanRule>(pixels, sink),
+        let c = self.config.calibration;
+        let check = self.max_raw != u16::MAX;
+        macro_rules! with {
+            ($b:literal, $g:literal, $t:literal) => {
+                if check {
+                    self.push_with::<With<$b, $g, $t>, true>(pixels, sink)
+                } else {
+                    self.push_with::<With<$b, $g, $t>, false>(pixels, sink)
+                }
+            };
+        }
+        match (
+            c.background.is_some(),
+            c.gain.is_some(),
+            c.threshold.is_some(),
+        ) {
+            (false, false, false) => with!(false, false, false),
+            (false, false, true) => with!(false, false, true),
+            (true, false, false) => with!(true, false, false),
+            (true, false, true) => with!(true, false, true),
+            (false, true, false) => with!(false, true, false),
+            (false, true, true) => with!(false, true, true),
+            (true, true, false) => with!(true, true, false),
+            (true, true, true) => with!(true, true, true),
         }
     }
 
-    fn push_with<R: Rule>(
+    /// `S`: the calibration steps; `CHECK`: whether raw pixels must be
+    /// checked against the bit depth (below 16 bits).
+    fn push_with<S: Steps, const CHECK: bool>(
         &mut self,
         mut pixels: &[u16],
         sink: &mut impl OutputSink,
@@ -227,19 +253,20 @@ impl<'c, 'm> Engine<'c, 'm> {
         while !pixels.is_empty() {
             let take = pixels.len().min((width - self.column) as usize);
             let (part, rest) = pixels.split_at(take);
-            if self.max_raw != u16::MAX {
-                if let Some(bad) = part.iter().position(|&r| r > self.max_raw) {
-                    self.push_row_part::<R>(&part[..bad], sink);
-                    let error = FrameError::PixelOutOfRange {
-                        row: self.row,
-                        column: self.column + bad as u16,
-                        value: part[bad],
-                    };
-                    self.start_frame();
-                    return Err(error);
-                }
+            if self.history_rows > 0 {
+                let at =
+                    (self.row as usize % self.history_rows) * width as usize + self.column as usize;
+                self.memory.history[at..at + take].copy_from_slice(part);
             }
-            self.push_row_part::<R>(part, sink);
+            if let Err(bad) = self.push_row_part::<S, CHECK>(part, sink) {
+                let error = FrameError::PixelOutOfRange {
+                    row: self.row,
+                    column: self.column + bad as u16,
+                    value: part[bad],
+                };
+                self.start_frame();
+                return Err(error);
+            }
             self.column += take as u16;
             if self.column == width {
                 self.end_row(sink);
@@ -249,108 +276,75 @@ impl<'c, 'm> Engine<'c, 'm> {
         Ok(())
     }
 
-    /// Pixels `column .. column + part.len()` of the current row.
+    /// Pixels `column .. column + part.len()` of the current row. On a pixel
+    /// out of range, returns its offset in `part`; every window whose last
+    /// pixel came before it has been emitted, no other.
+    ///
+    /// Why that holds in one pass: windows are visited by first column and
+    /// each one's segment is checked pixel by pixel in order (the
+    /// pre-filter never skips an out-of-range pixel, see
+    /// `OpenWindow::floor`), the gaps between windows when they are passed.
+    /// So the first bad pixel found, at column `c`, is the first of the part:
+    /// everything before it was covered by an earlier window's segment, a
+    /// gap, or the finding window's own segment. The part is then cut at
+    /// `c`, and the remaining windows see only their pixels before it: those
+    /// that end there are still emitted, as they must be.
     #[inline(always)]
-    fn push_row_part<R: Rule>(&mut self, part: &[u16], sink: &mut impl OutputSink) {
+    fn push_row_part<S: Steps, const CHECK: bool>(
+        &mut self,
+        part: &[u16],
+        sink: &mut impl OutputSink,
+    ) -> Result<(), usize> {
         let start = self.column;
-        let end = start + part.len() as u16;
+        let mut end = start + part.len() as u16;
+        let mut bad = None;
         let row = self.row;
         let row_offset = row as usize * self.config.camera.width as usize;
-        // subtract-mean's "below" heap, after the heap in a selecting slot.
-        let below_len = match self.config.selection.rule {
-            SelectionRule::SubtractMean { count } => count as usize,
-            _ => 0,
-        };
-        let memory = &mut self.memory;
-        // Columns whose calibrated values are in `self.calibrated`.
-        let mut block = (start, start);
+        // Columns checked against the bit depth so far.
+        let mut checked = start;
         let mut k = self.cursor;
         while k < self.active_len {
-            let slot = memory.active[k] as usize;
-            let (x, end_column) = (memory.open[slot].x, memory.open[slot].end_column);
+            let slot = self.memory.active[k] as usize;
+            let window = &self.memory.open[slot];
+            let (x, end_column, y, last_row) =
+                (window.x, window.end_column, window.y, window.last_row);
             if x >= end {
                 break;
             }
             let from = x.max(start);
+            if CHECK && bad.is_none() && from > checked {
+                let gap = (checked - start) as usize..(from - start) as usize;
+                if let Err(b) = check_range(&part[gap.clone()], self.max_raw) {
+                    bad = Some(gap.start + b);
+                    end = start + (gap.start + b) as u16;
+                    if x >= end {
+                        break;
+                    }
+                }
+            }
             let to = end_column.min(end);
             if from < to {
-                // Calibrate a block of the row part from this segment on, unless
-                // an earlier segment's block covers it already (the active list
-                // is sorted by first column, so `from` never decreases). The
-                // block goes beyond the segment only if the next window starts
-                // within it, so pixels between windows are not calibrated.
-                if to > block.1 {
-                    let next_x = match memory.active[..self.active_len].get(k + 1) {
-                        Some(&next) => memory.open[next as usize].x,
-                        None => u16::MAX,
-                    };
-                    let block_end = if next_x <= to {
-                        end.min(from + CALIBRATION_BLOCK as u16)
-                    } else {
-                        to
-                    };
-                    self.calibrator.calibrate(
-                        &part[(from - start) as usize..(block_end - start) as usize],
-                        row_offset + from as usize,
-                        &mut self.calibrated,
-                    );
-                    block = (from, block_end);
-                }
-                let calibrated =
-                    &self.calibrated[(from - block.0) as usize..(to - block.0) as usize];
-                let window = &mut memory.open[slot];
-                let selection = &mut window.selection;
-                let capacity = selection.capacity() as usize;
-                let base = window.slot as usize * self.stride;
-                // A full heap rejects a whole segment below its minimum at once
-                // (the common case); only then is the segment's maximum needed.
-                let rejected = if capacity > 0 && selection.is_full() {
-                    selection.rejects::<R>(calibrated)
-                } else {
-                    None
-                };
-                if let Some(max) = rejected {
-                    let below = match R::RULE {
-                        RuleKind::SubtractMean => {
-                            &mut memory.values[base + capacity..][..below_len]
+                let at = (from - start) as usize;
+                let checked_segment = self.segment::<S, CHECK>(
+                    slot,
+                    &part[at..(to - start) as usize],
+                    row_offset + from as usize,
+                    from - x,
+                    row - y,
+                );
+                match checked_segment {
+                    Ok(()) => {
+                        if to == end_column && row == last_row {
+                            self.finish(slot, sink);
                         }
-                        _ => &mut [],
-                    };
-                    selection.reject::<R>(below, calibrated, max);
-                } else {
-                    let mut slot = Slot::at(
-                        memory.values,
-                        memory.positions,
-                        base,
-                        capacity,
-                        if capacity > 0 { below_len } else { 0 },
-                    );
-                    selection.push::<R>(&mut slot, calibrated, from - window.x, row - window.y);
+                    }
+                    Err(b) => {
+                        bad = Some(at + b);
+                        end = from + b as u16;
+                    }
                 }
-                if to == window.end_column && row == window.last_row {
-                    let capacity = window.selection.capacity() as usize;
-                    let slot = Slot::at(
-                        memory.values,
-                        memory.positions,
-                        base,
-                        capacity,
-                        if capacity > 0 { below_len } else { 0 },
-                    );
-                    let filter = self.config.selection.level_filter.map(|f| {
-                        (
-                            &mut memory.level_filters[window.index as usize],
-                            f.gain_shift,
-                        )
-                    });
-                    let moments = window.selection.finish::<R>(&slot, filter);
-                    window.finished = true;
-                    self.finished_in_row = true;
-                    sink.subaperture(self.centroider.result(
-                        window.index,
-                        moments,
-                        window.width,
-                        window.height,
-                    ));
+                if CHECK {
+                    checked = checked.max(to);
                 }
             }
             if k == self.cursor && end_column <= end {
@@ -358,6 +352,269 @@ impl<'c, 'm> Engine<'c, 'm> {
             }
             k += 1;
         }
+        if CHECK && bad.is_none() && checked < end {
+            let gap = (checked - start) as usize;
+            check_range(&part[gap..], self.max_raw).map_err(|b| gap + b)?;
+        }
+        bad.map_or(Ok(()), Err)
+    }
+
+    /// One window's pixels of the current row: columns `i0 ..` of its row
+    /// `j`, `pixel` the row-major index of the first. Returns the offset of
+    /// a pixel out of range.
+    #[inline(always)]
+    fn segment<S: Steps, const CHECK: bool>(
+        &mut self,
+        slot: usize,
+        raw: &[u16],
+        pixel: usize,
+        i0: u16,
+        j: u16,
+    ) -> Result<(), usize> {
+        let memory = &mut self.memory;
+        let window = &mut memory.open[slot];
+        if window.capacity == 0 {
+            // No selection: every pixel weighs its value.
+            if CHECK {
+                check_range(raw, self.max_raw)?;
+            }
+            let calibrated = &mut self.calibrated[..raw.len()];
+            self.calibrator.calibrate(raw, pixel, calibrated);
+            window.moments.add_row(calibrated, i0, j);
+            return Ok(());
+        }
+        if window.rescan {
+            return if CHECK {
+                check_range(raw, self.max_raw)
+            } else {
+                Ok(())
+            };
+        }
+        let floor = window.floor;
+        if floor != 0
+            && (floor >= calibrate::FLOOR_NONE || !prefilter::any_at_least(raw, floor as u16))
+        {
+            return Ok(());
+        }
+        let calibration = &self.config.calibration;
+        let rule = WindowRule {
+            rule: self.config.selection.rule,
+            n: window.n,
+            pixels: window.pixels(),
+        };
+        let base = window.slot as usize * self.stride;
+        let capacity = window.capacity as usize;
+        let mut buffer = Buffer {
+            values: &mut memory.values[base..base + capacity],
+            positions: &mut memory.positions[base..base + capacity],
+            front: window.front as usize,
+            back: window.back as usize,
+            hint: window.hint,
+            hint_ties: window.hint_ties,
+            low: window.low,
+            low_ties: window.low_ties,
+            strict: window.strict,
+        };
+        let mut floor = floor;
+        let mut result = Ok(());
+        'pixels: for (k, &r) in raw.iter().enumerate() {
+            if (r as u32) < floor {
+                continue;
+            }
+            if CHECK && r > self.max_raw {
+                result = Err(k);
+                break;
+            }
+            let p = calibrate::value::<S>(calibration, r, pixel + k);
+            let position = pack(i0 + k as u16, j);
+            loop {
+                if p < buffer.low || (buffer.strict && p == buffer.low) {
+                    continue 'pixels;
+                }
+                if p == buffer.hint {
+                    buffer.hint_ties.add(position);
+                    continue 'pixels;
+                }
+                if p < buffer.hint && p == buffer.low {
+                    buffer.low_ties.add(position);
+                    continue 'pixels;
+                }
+                if buffer.front + buffer.back < capacity {
+                    break;
+                }
+                // Full: drop the back tier if the front proves it useless,
+                // else raise `low` to the cutoff so far; then look again.
+                if buffer.back > 0 && buffer.covers_hint(&rule) {
+                    buffer.drop_back();
+                } else {
+                    self.stats.compactions = self.stats.compactions.wrapping_add(1);
+                    if !buffer.compact(&rule, memory.scratch) {
+                        window.rescan = true;
+                        if CHECK {
+                            result =
+                                check_range(&raw[k + 1..], self.max_raw).map_err(|b| k + 1 + b);
+                        }
+                        break 'pixels;
+                    }
+                }
+                floor = admission_floor(calibration, self.max_raw, window.bounds, &buffer);
+            }
+            if p > buffer.hint {
+                buffer.values[buffer.front] = p;
+                buffer.positions[buffer.front] = position;
+                buffer.front += 1;
+            } else {
+                buffer.back += 1;
+                buffer.values[capacity - buffer.back] = p;
+                buffer.positions[capacity - buffer.back] = position;
+            }
+        }
+        // Once the front and hint ties prove the cutoff is at or above the
+        // hint, nothing below it can matter, and often no more pixels equal
+        // to it: filter the rest of the window harder.
+        if !buffer.strict && buffer.covers_hint(&rule) {
+            buffer.drop_back();
+            buffer.strict = Tiers::hint_ties_settled(rule.rule, rule.n, buffer.front as u16);
+            floor = admission_floor(calibration, self.max_raw, window.bounds, &buffer);
+        }
+        window.front = buffer.front as u16;
+        window.back = buffer.back as u16;
+        window.hint = buffer.hint;
+        window.hint_ties = buffer.hint_ties;
+        window.low = buffer.low;
+        window.low_ties = buffer.low_ties;
+        window.strict = buffer.strict;
+        window.floor = floor;
+        result
+    }
+
+    /// A window's last pixel has arrived: its result, and what it leaves for
+    /// the next frame (level filter, seed).
+    fn finish(&mut self, slot: usize, sink: &mut impl OutputSink) {
+        self.finished_in_row = true;
+        let memory = &mut self.memory;
+        let window = &mut memory.open[slot];
+        window.finished = true;
+        let moments = if window.capacity == 0 {
+            window.moments
+        } else {
+            let rule = WindowRule {
+                rule: self.config.selection.rule,
+                n: window.n,
+                pixels: window.pixels(),
+            };
+            let state = &mut memory.subapertures[window.index as usize];
+            let base = window.slot as usize * self.stride;
+            let capacity = window.capacity as usize;
+            let (front, back) = (window.front as usize, window.back as usize);
+            let values = &memory.values[base..base + capacity];
+            let positions = &memory.positions[base..base + capacity];
+            let filter = self.config.selection.level_filter;
+            let level = |cut: &Cut, state: &mut SubapertureState| match filter {
+                Some(f) => state.level.update(cut.level, f.gain_shift),
+                None => cut.level,
+            };
+            let held =
+                front + back + window.hint_ties.count as usize + window.low_ties.count as usize;
+            self.stats.windows = self.stats.windows.wrapping_add(1);
+            self.stats.candidates = self.stats.candidates.wrapping_add(held as u32);
+            let mut too_high = false;
+            let from_buffer = if window.rescan {
+                None
+            } else {
+                let mut tiers = Tiers {
+                    front: &values[..front],
+                    hint: window.hint,
+                    hint_ties: window.hint_ties.count,
+                    back: &values[capacity - back..],
+                    low: window.low,
+                    low_ties: window.low_ties.count,
+                    complete: held == rule.pixels as usize,
+                    scratch: memory.scratch,
+                };
+                let cut = select::cut(&rule, &mut tiers).ok();
+                too_high = cut.is_none();
+                cut
+            };
+            match from_buffer {
+                Some(cut) => {
+                    let level = level(&cut, state);
+                    state.seed.observe(cut.cutoff, false);
+                    let mut moments = Moments::ZERO;
+                    select::add_moments(&mut moments, &cut, level, &values[..front], positions);
+                    select::add_tie_moments(
+                        &mut moments,
+                        &cut,
+                        level,
+                        window.hint,
+                        window.hint_ties,
+                    );
+                    if cut.bound < window.hint {
+                        let at = capacity - back;
+                        select::add_moments(
+                            &mut moments,
+                            &cut,
+                            level,
+                            &values[at..],
+                            &positions[at..],
+                        );
+                        select::add_tie_moments(
+                            &mut moments,
+                            &cut,
+                            level,
+                            window.low,
+                            window.low_ties,
+                        );
+                    }
+                    moments
+                }
+                None => {
+                    self.stats.rescans = self.stats.rescans.wrapping_add(1);
+                    let pixels = rule.pixels as usize;
+                    let (values, copy) = memory.scratch.split_at_mut(pixels);
+                    let positions = &mut memory.scratch_positions[..pixels];
+                    let width = self.config.camera.width as usize;
+                    let w = window.width as usize;
+                    for j in 0..window.height as usize {
+                        let y = window.y as usize + j;
+                        let at = (y % self.history_rows) * width + window.x as usize;
+                        let row = &mut values[j * w..(j + 1) * w];
+                        self.calibrator.calibrate(
+                            &memory.history[at..at + w],
+                            y * width + window.x as usize,
+                            row,
+                        );
+                        for (i, p) in positions[j * w..(j + 1) * w].iter_mut().enumerate() {
+                            *p = pack(i as u16, j as u16);
+                        }
+                    }
+                    let mut tiers = Tiers {
+                        front: values,
+                        hint: i32::MIN,
+                        hint_ties: 0,
+                        back: &[],
+                        low: i32::MIN,
+                        low_ties: 0,
+                        complete: true,
+                        scratch: copy,
+                    };
+                    // Complete candidates always cut (N < pixels); the
+                    // fallback keeps nothing and is never taken.
+                    let cut = select::cut(&rule, &mut tiers).unwrap_or(KEEPS_NOTHING);
+                    let level = level(&cut, state);
+                    state.seed.observe(cut.cutoff, too_high);
+                    let mut moments = Moments::ZERO;
+                    select::add_moments(&mut moments, &cut, level, values, positions);
+                    moments
+                }
+            }
+        };
+        sink.subaperture(self.centroider.result(
+            window.index,
+            moments,
+            window.width,
+            window.height,
+        ));
     }
 
     fn end_row(&mut self, sink: &mut impl OutputSink) {
@@ -418,6 +675,7 @@ impl<'c, 'm> Engine<'c, 'm> {
     /// Opens the windows whose first row is the current row.
     fn open_windows_of_row(&mut self) {
         let windows = self.config.windows;
+        let rule = self.config.selection.rule;
         while self.next_to_open < windows.len() {
             let index = self.memory.order[self.next_to_open] as usize;
             let w = windows[index];
@@ -428,6 +686,14 @@ impl<'c, 'm> Engine<'c, 'm> {
             // Capacity was proved sufficient when the engine was configured.
             self.free_len -= 1;
             let slot = self.memory.free[self.free_len];
+            let n = self.config.pixel_count(index);
+            let capacity = buffer_capacity(rule, n, w.pixel_count());
+            let state = &self.memory.subapertures[index];
+            let (hint, low) = if capacity > 0 {
+                state.seed.thresholds()
+            } else {
+                (0, 0)
+            };
             self.memory.open[slot as usize] = OpenWindow {
                 index: index as u16,
                 x: w.x,
@@ -438,7 +704,20 @@ impl<'c, 'm> Engine<'c, 'm> {
                 height: w.height,
                 slot,
                 finished: false,
-                selection: SelectionState::new(capacity_of(&self.config, index)),
+                n,
+                capacity,
+                front: 0,
+                back: 0,
+                hint,
+                hint_ties: Ties::NONE,
+                low,
+                low_ties: Ties::NONE,
+                strict: false,
+                floor: raw_floor(&self.config.calibration, state.bounds, low)
+                    .min(self.max_raw as u32 + 1),
+                rescan: false,
+                bounds: state.bounds,
+                moments: Moments::ZERO,
             };
             // Insert into the active list, sorted by first column.
             let active = &mut self.memory.active;
@@ -454,10 +733,47 @@ impl<'c, 'm> Engine<'c, 'm> {
     }
 }
 
+/// The pre-filter's raw floor for a window's admission threshold, lowered
+/// so that a pixel above `max_raw` always passes (see `OpenWindow::floor`).
+#[inline(always)]
+fn admission_floor(
+    calibration: &Calibration<'_>,
+    max_raw: u16,
+    bounds: WindowBounds,
+    buffer: &Buffer<'_>,
+) -> u32 {
+    let admit = if buffer.strict {
+        buffer.low.saturating_add(1)
+    } else {
+        buffer.low
+    };
+    raw_floor(calibration, bounds, admit).min(max_raw as u32 + 1)
+}
+
+/// Never used: see `Engine::finish`.
+const KEEPS_NOTHING: Cut = Cut {
+    bound: i32::MAX,
+    strict: true,
+    level: None,
+    cutoff: i32::MIN,
+};
+
+/// The offset of the first pixel of `raw` above `max_raw`, if any.
+#[inline(always)]
+fn check_range(raw: &[u16], max_raw: u16) -> Result<(), usize> {
+    if prefilter::any_at_least(raw, max_raw + 1) {
+        Err(raw.iter().position(|&r| r > max_raw).unwrap_or(0))
+    } else {
+        Ok(())
+    }
+}
+
 /// Sizes of an engine for a configuration.
 struct Plan {
-    /// Pool entries per open window.
+    /// Candidate entries per open window.
     stride: usize,
+    /// Rows of the history ring.
+    history_rows: usize,
     needed: MemorySize,
 }
 
@@ -486,13 +802,16 @@ fn plan(
         *o = k as u16;
     }
     order.sort_unstable_by_key(|&k| (windows[k as usize].y, windows[k as usize].x));
-    let stride = (0..count)
-        .map(|k| {
-            let c = capacity_of(config, k);
-            c as usize + below_capacity(config.selection.rule, c) as usize
-        })
-        .max()
-        .unwrap_or(0);
+    let rule = config.selection.rule;
+    let (mut stride, mut history_rows, mut scratch) = (0usize, 0usize, 0usize);
+    for (k, w) in windows.iter().enumerate() {
+        let capacity = buffer_capacity(rule, config.pixel_count(k), w.pixel_count()) as usize;
+        if capacity > 0 {
+            stride = stride.max(capacity);
+            history_rows = history_rows.max(w.height as usize);
+            scratch = scratch.max(w.pixel_count());
+        }
+    }
     let open = match count_open_windows(windows, order, heap) {
         Some(open) if open <= available.open_windows => open,
         found => {
@@ -507,23 +826,40 @@ fn plan(
         subapertures: count,
         open_windows: open,
         pool_entries: open * stride,
+        history_pixels: history_rows * config.camera.width as usize,
+        scratch_entries: scratch,
     };
-    if needed.pool_entries > available.pool_entries {
-        return Err(ConfigError::MemoryBudget {
-            needed: needed.pool_entries,
-            available: available.pool_entries,
-            what: MemoryKind::SelectionEntries,
-        });
+    let checks = [
+        (
+            needed.pool_entries,
+            available.pool_entries,
+            MemoryKind::SelectionEntries,
+        ),
+        (
+            needed.history_pixels,
+            available.history_pixels,
+            MemoryKind::RowHistory,
+        ),
+        (
+            needed.scratch_entries,
+            available.scratch_entries,
+            MemoryKind::ScratchEntries,
+        ),
+    ];
+    for (needed, available, what) in checks {
+        if needed > available {
+            return Err(ConfigError::MemoryBudget {
+                needed,
+                available,
+                what,
+            });
+        }
     }
-    Ok(Plan { stride, needed })
-}
-
-fn capacity_of(config: &Config<'_>, index: usize) -> u16 {
-    heap_capacity(
-        config.selection.rule,
-        config.pixel_count(index),
-        config.windows[index].pixel_count(),
-    )
+    Ok(Plan {
+        stride,
+        history_rows,
+        needed,
+    })
 }
 
 /// The largest number of windows open at once over a frame, using `heap`

@@ -82,6 +82,8 @@ pub struct DeviceInfo {
     pub max_camera_pixels: u32,
     pub max_open_windows: u32,
     pub pool_entries: u32,
+    pub history_pixels: u32,
+    pub scratch_entries: u32,
     pub max_results_per_row: u32,
     pub max_frame_bytes: u32,
     pub pixel_source: PixelSourceKind,
@@ -97,6 +99,8 @@ impl DeviceInfo {
             max_camera_pixels: c.max_camera_pixels,
             max_open_windows: c.max_open_windows,
             pool_entries: c.pool_entries,
+            history_pixels: c.history_pixels,
+            scratch_entries: c.scratch_entries,
             max_results_per_row: c.max_results_per_row,
             max_frame_bytes: c.max_frame_bytes,
             pixel_source: c.pixel_source,
@@ -110,7 +114,8 @@ impl fmt::Display for DeviceInfo {
         write!(
             f,
             "board \"{}\", protocol {} (schema {:#018x}); up to {} sub-apertures, {} map pixels, \
-             {} open windows, {} pool entries, {} results per row, frames of {} bytes; pixels: {:?}",
+             {} open windows, {} pool entries, {} history pixels, {} scratch entries, {} results per \
+             row, frames of {} bytes; pixels: {:?}",
             self.board,
             self.version,
             self.schema,
@@ -118,6 +123,8 @@ impl fmt::Display for DeviceInfo {
             self.max_camera_pixels,
             self.max_open_windows,
             self.pool_entries,
+            self.history_pixels,
+            self.scratch_entries,
             self.max_results_per_row,
             self.max_frame_bytes,
             self.pixel_source
@@ -364,6 +371,8 @@ impl Client {
                 max_camera_pixels: 0,
                 max_open_windows: 0,
                 pool_entries: 0,
+                history_pixels: 0,
+                scratch_entries: 0,
                 max_results_per_row: 0,
                 max_frame_bytes: MAX_FRAME_LEN as u32,
                 pixel_source: PixelSourceKind::Link,

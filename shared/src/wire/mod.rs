@@ -301,6 +301,12 @@ pub struct Capabilities<'a> {
     pub max_open_windows: u32,
     /// Selection pool entries (SPEC-independent engine budget).
     pub pool_entries: u32,
+    /// Camera pixels the engine's row history holds: the tallest selecting
+    /// window times the camera width must fit (a window is rescanned from
+    /// it when its seed left out a pixel it needed).
+    pub history_pixels: u32,
+    /// Scratch entries: the pixels of the largest selecting window must fit.
+    pub scratch_entries: u32,
     /// Sub-apertures that may end in one camera row.
     pub max_results_per_row: u32,
     /// Longest frame the device accepts, delimiter included.

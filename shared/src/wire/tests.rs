@@ -123,6 +123,8 @@ fn device_examples() -> Vec<DeviceMessage<'static>> {
                 max_camera_pixels: u32::MAX,
                 max_open_windows: u32::MAX,
                 pool_entries: u32::MAX,
+                history_pixels: u32::MAX,
+                scratch_entries: u32::MAX,
                 max_results_per_row: u32::MAX,
                 max_frame_bytes: MAX_FRAME_LEN as u32,
                 pixel_source: PixelSourceKind::Camera,
@@ -581,7 +583,7 @@ fn schema_hash_is_pinned() {
     );
 }
 
-const PINNED_SCHEMA_HASH: u64 = 0xdca0_8e62_dd79_1538;
+const PINNED_SCHEMA_HASH: u64 = 0x62aa_7ed2_3a4e_932d;
 
 fn hash_of<T: Schema + ?Sized>() -> u64 {
     u64::from_le_bytes(hash_ty_path::<T>(WIRE_CONVENTIONS))

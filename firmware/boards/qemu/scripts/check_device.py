@@ -221,6 +221,7 @@ def decode_device(body):
         version, schema = r.varint(), r.varint()
         caps = dict(max_subapertures=r.varint(), max_camera_pixels=r.varint(),
                     max_open_windows=r.varint(), pool_entries=r.varint(),
+                    history_pixels=r.varint(), scratch_entries=r.varint(),
                     max_results_per_row=r.varint(), max_frame_bytes=r.varint(),
                     pixel_source=SOURCES[r.varint()], board=r.bytes().decode())
         return "HelloReply", dict(version=version, schema=schema, capabilities=caps)

@@ -5,14 +5,17 @@
 //! | sub-apertures per configuration | [`MAX_SUBAPERTURES`] = 6400 | an 80x80 ELT-class grid (without maps); 1024 is plenty for 8 m-class |
 //! | camera pixels of background/gain maps | [`MAX_MAP_PIXELS`] = 65536 | maps for cameras up to 256x256 (no limit on the camera without maps) |
 //! | open windows (crossing one camera row) | [`MAX_OPEN_WINDOWS`] = 256 | a grid row of 256 windows, or several rows of overlapping ones |
-//! | selection pool entries | [`POOL_ENTRIES`] = 256 x 271 | every open window of 16x16 with any N and rule: the largest stride is subtract-mean N = 255, M = 16 (255 + 16); subtract-next N = 255 needs 256; N >= 256 selects nothing (0). Fewer open windows leave room for larger windows. |
+//! | candidate pool entries | [`POOL_ENTRIES`] = 256 x 271 | every open window of 16x16 with any N and rule (a window's buffer never exceeds its pixels, 256), with room to spare; fewer open windows leave room for larger windows. |
+//! | row history pixels | [`HISTORY_PIXELS`] = 64 x 4096 | the tallest window (64 rows) of the widest camera (4096) |
+//! | scratch entries | [`SCRATCH_ENTRIES`] = 4096 | the largest window, 64 x 64 |
 //! | results finished by one camera row | [`MAX_RESULTS_PER_ROW`] = 1024 | |
 //!
 //! Bytes (`TOTAL_BYTES`, logged at boot): two configuration slots of
-//! 18 B per sub-aperture + 6 B per map pixel (1.0 MB), the engine's 18 B
-//! per sub-aperture and 6 B per pool entry (0.5 MB), vetting scratch,
-//! result queue, link buffers and the pixel stream's buffers: about 1.6 MB
-//! in all, leaving over 2 MB of RAM for the stack and the rest.
+//! 18 B per sub-aperture + 6 B per map pixel (1.0 MB), the engine's 26 B
+//! per sub-aperture, 6 B per pool entry, 2 B per history pixel and 10 B per
+//! scratch entry (1.1 MB), vetting scratch, result queue, link buffers and
+//! the pixel stream's buffers: about 2.2 MB in all, leaving over 1.5 MB of
+//! RAM for the stack and the rest.
 //!
 //! Every buffer is its own `static` whose initial value is all zero bytes
 //! (so it lands in `.bss`, zeroed at boot), except the open windows'
@@ -21,17 +24,19 @@
 //! flash image and copied at every boot.
 
 use brightpix_firmware::device::{DeviceBuffers, SlotStorage};
-use brightpix_firmware::engine::{EngineMemory, LevelFilterState, OpenWindow, SubapertureResult};
+use brightpix_firmware::engine::{EngineMemory, OpenWindow, SubapertureResult, SubapertureState};
 use brightpix_protocol::wire::{MAX_FRAME_LEN, MAX_PIXEL_BYTES};
 use static_cell::ConstStaticCell;
 
 pub const MAX_SUBAPERTURES: usize = 6400;
 pub const MAX_MAP_PIXELS: usize = 256 * 256;
 pub const MAX_OPEN_WINDOWS: usize = 256;
-/// Pool entries per open window that any N and rule needs on 16x16
-/// windows: subtract-mean with N = 255 and M = 16.
+/// Pool entries per open window: every N and rule on 16x16 windows needs
+/// at most 256 (kept from the previous engine's budget, 255 + 16).
 pub const POOL_STRIDE_16X16: usize = 255 + 16;
 pub const POOL_ENTRIES: usize = MAX_OPEN_WINDOWS * POOL_STRIDE_16X16;
+pub const HISTORY_PIXELS: usize = 64 * 4096;
+pub const SCRATCH_ENTRIES: usize = 64 * 64;
 pub const MAX_RESULTS_PER_ROW: usize = 1024;
 /// The pixel stream (`--pixels`) reads its file into this buffer: the most
 /// one semihosting read asks for.
@@ -56,14 +61,19 @@ const NO_RESULT: SubapertureResult = SubapertureResult {
 static SLOT_A: ConstStaticCell<SlotStorage<S, P>> = ConstStaticCell::new(SlotStorage::new());
 static SLOT_B: ConstStaticCell<SlotStorage<S, P>> = ConstStaticCell::new(SlotStorage::new());
 static ENGINE_ORDER: ConstStaticCell<[u16; S]> = ConstStaticCell::new([0; S]);
-static LEVEL_FILTERS: ConstStaticCell<[LevelFilterState; S]> =
-    ConstStaticCell::new([LevelFilterState::RESET; S]);
+static SUBAPERTURE_STATES: ConstStaticCell<[SubapertureState; S]> =
+    ConstStaticCell::new([SubapertureState::RESET; S]);
 static OPEN_WINDOWS: ConstStaticCell<[OpenWindow; OPEN]> =
     ConstStaticCell::new([OpenWindow::CLOSED; OPEN]);
 static ACTIVE: ConstStaticCell<[u16; OPEN]> = ConstStaticCell::new([0; OPEN]);
 static FREE: ConstStaticCell<[u16; OPEN]> = ConstStaticCell::new([0; OPEN]);
 static POOL_VALUES: ConstStaticCell<[i32; ENTRIES]> = ConstStaticCell::new([0; ENTRIES]);
 static POOL_POSITIONS: ConstStaticCell<[u16; ENTRIES]> = ConstStaticCell::new([0; ENTRIES]);
+static HISTORY: ConstStaticCell<[u16; HISTORY_PIXELS]> = ConstStaticCell::new([0; HISTORY_PIXELS]);
+static SCRATCH: ConstStaticCell<[i32; 2 * SCRATCH_ENTRIES]> =
+    ConstStaticCell::new([0; 2 * SCRATCH_ENTRIES]);
+static SCRATCH_POSITIONS: ConstStaticCell<[u16; SCRATCH_ENTRIES]> =
+    ConstStaticCell::new([0; SCRATCH_ENTRIES]);
 static VET_ORDER: ConstStaticCell<[u16; S]> = ConstStaticCell::new([0; S]);
 static VET_SCRATCH: ConstStaticCell<[u16; S]> = ConstStaticCell::new([0; S]);
 static RESULTS: ConstStaticCell<[SubapertureResult; Q]> = ConstStaticCell::new([NO_RESULT; Q]);
@@ -76,9 +86,11 @@ static STREAM_PIXELS: ConstStaticCell<[u16; PIXEL_BATCH]> = ConstStaticCell::new
 
 /// Bytes of all the buffers above.
 pub const TOTAL_BYTES: usize = 2 * core::mem::size_of::<SlotStorage<S, P>>()
-    + S * (2 + core::mem::size_of::<LevelFilterState>())
+    + S * (2 + core::mem::size_of::<SubapertureState>())
     + OPEN * (core::mem::size_of::<OpenWindow>() + 4)
     + ENTRIES * 6
+    + HISTORY_PIXELS * 2
+    + SCRATCH_ENTRIES * 10
     + 2 * S * 2
     + Q * core::mem::size_of::<SubapertureResult>()
     + 2 * MAX_FRAME_LEN
@@ -91,12 +103,15 @@ pub fn device_buffers() -> DeviceBuffers<'static> {
         slots: [SLOT_A.take().borrow(), SLOT_B.take().borrow()],
         engine: EngineMemory {
             order: ENGINE_ORDER.take(),
-            level_filters: LEVEL_FILTERS.take(),
+            subapertures: SUBAPERTURE_STATES.take(),
             open: OPEN_WINDOWS.take(),
             active: ACTIVE.take(),
             free: FREE.take(),
             values: POOL_VALUES.take(),
             positions: POOL_POSITIONS.take(),
+            history: HISTORY.take(),
+            scratch: SCRATCH.take(),
+            scratch_positions: SCRATCH_POSITIONS.take(),
         },
         order: VET_ORDER.take(),
         scratch: VET_SCRATCH.take(),

@@ -154,7 +154,7 @@ async fn device_task(memory: Memory) {
     let camera = DcmiSource::new(ring, DATA_WIDTH, run_words, run_pixels);
 
     // --- the device loop ---------------------------------------------------------
-    let buffers = storage::device_buffers(&mut axi.background, d2, device_memory);
+    let buffers = storage::device_buffers(&mut axi.background, &mut axi.engine, d2, device_memory);
     let mut device = Device::new(UsbLink::new(class), camera, buffers, BOARD);
     let capabilities = device.capabilities();
     defmt::info!(

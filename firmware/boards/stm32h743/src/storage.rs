@@ -6,12 +6,13 @@
 //!
 //! | memory | what | bytes |
 //! |---|---|---|
-//! | DTCM (128 KiB, RAM: `.data`/`.bss`/stack) | engine memory (1600 sub-apertures, 128 open windows, 4096 pool entries) | 63 104 |
+//! | DTCM (128 KiB, RAM: `.data`/`.bss`/stack) | engine memory (1600 sub-apertures, 128 open windows, 4096 candidate entries) | about 77 000 |
 //! | | upload vetting scratch, result queue (64 per row), link buffers, `PixelRows` batch | 12 000 |
 //! | | camera run buffers (256 words, 1024 pixels) | 3 072 |
 //! | | stack (at least, checked by the linker), executor task, USB, defmt | >= 16 384 + ~10 000 |
 //! | AXI SRAM (512 KiB, DMA-reachable) | DCMI DMA ring: 7680 words = 64 rows of 240 pixels at 16 bits | 30 720 |
 //! | | background maps, 2 slots x 57 600 x i32 | 460 800 |
+//! | | the engine's row history (16 rows of 240) and rescan scratch (a 16 x 16 window) | 10 240 |
 //! | D2 SRAM1-3 (288 KiB) | gain maps, 2 slots x 57 600 x u16 | 230 400 |
 //! | | windows, pixel counts, reference slopes: 2 slots x 1600 x 18 | 57 600 |
 //!
@@ -26,7 +27,7 @@ use core::sync::atomic::{AtomicBool, Ordering};
 
 use brightpix_firmware::device::storage::PIXEL_BATCH;
 use brightpix_firmware::device::{ConfigSlot, DeviceBuffers};
-use brightpix_firmware::engine::{StaticEngineMemory, SubapertureResult};
+use brightpix_firmware::engine::{EngineMemory, StaticEngineMemory, SubapertureResult};
 use brightpix_protocol::wire::MAX_FRAME_LEN;
 use brightpix_protocol::SubapertureWindow;
 
@@ -36,8 +37,14 @@ pub const CAMERA_PIXELS: usize = 240 * 240;
 pub const SUBAPERTURES: usize = 1600;
 /// Windows open at once (one grid row of 40, with room for irregular layouts).
 pub const OPEN_WINDOWS: usize = 128;
-/// Selection pool entries (e.g. 128 open windows x N + 1 = 32).
+/// Candidate pool entries (e.g. 128 open windows of 32; a window's buffer
+/// is about 2 (N + 1) + 32 entries, at most its pixels).
 pub const POOL_ENTRIES: usize = 4096;
+/// Row-history pixels: selecting windows up to 16 rows tall on a 240-pixel
+/// wide camera.
+pub const HISTORY_PIXELS: usize = 16 * 240;
+/// Scratch entries: selecting windows up to 256 pixels (16 x 16).
+pub const SCRATCH_ENTRIES: usize = 256;
 /// Results one camera row may finish.
 pub const RESULTS_PER_ROW: usize = 64;
 /// The DCMI DMA ring, in 32-bit words: 64 rows of a 240-pixel camera in an
@@ -52,6 +59,16 @@ pub const RUN_WORDS: usize = 256;
 pub struct AxiSram {
     pub ring: [u32; RING_WORDS],
     pub background: [[i32; CAMERA_PIXELS]; 2],
+    pub engine: EngineSram,
+}
+
+/// The engine's memory that is touched only when a window needs a rescan
+/// (and the history, written once per pixel): it need not be in the DTCM.
+#[repr(C)]
+pub struct EngineSram {
+    pub history: [u16; HISTORY_PIXELS],
+    pub scratch: [i32; 2 * SCRATCH_ENTRIES],
+    pub scratch_positions: [u16; SCRATCH_ENTRIES],
 }
 
 /// D2 SRAM1-3: the gain maps and the per-sub-aperture tables.
@@ -73,7 +90,7 @@ const NO_RESULT: SubapertureResult = SubapertureResult {
 
 /// DTCM: everything the CPU works on per pixel, and the small buffers.
 pub struct Dtcm {
-    pub engine: StaticEngineMemory<SUBAPERTURES, OPEN_WINDOWS, POOL_ENTRIES>,
+    pub engine: StaticEngineMemory<SUBAPERTURES, OPEN_WINDOWS, POOL_ENTRIES, 0, 0>,
     pub order: [u16; SUBAPERTURES],
     pub scratch: [u16; SUBAPERTURES],
     pub results: [SubapertureResult; RESULTS_PER_ROW],
@@ -142,6 +159,7 @@ pub fn take() -> (&'static mut AxiSram, &'static mut D2Sram, &'static mut Dtcm) 
 /// configuration slots across AXI (backgrounds) and D2 SRAM (the rest).
 pub fn device_buffers<'d>(
     background: &'d mut [[i32; CAMERA_PIXELS]; 2],
+    engine_sram: &'d mut EngineSram,
     d2: &'d mut D2Sram,
     dtcm: DtcmDevice<'d>,
 ) -> DeviceBuffers<'d> {
@@ -155,7 +173,12 @@ pub fn device_buffers<'d>(
             ConfigSlot::new(win_a, cnt_a, ref_a, bg_a, gain_a),
             ConfigSlot::new(win_b, cnt_b, ref_b, bg_b, gain_b),
         ],
-        engine: dtcm.engine.borrow(),
+        engine: EngineMemory {
+            history: &mut engine_sram.history,
+            scratch: &mut engine_sram.scratch,
+            scratch_positions: &mut engine_sram.scratch_positions,
+            ..dtcm.engine.borrow()
+        },
         order: dtcm.order,
         scratch: dtcm.scratch,
         results: dtcm.results,
@@ -167,7 +190,7 @@ pub fn device_buffers<'d>(
 
 /// The device's part of the DTCM, split from the camera's run buffers.
 pub struct DtcmDevice<'a> {
-    pub engine: &'a mut StaticEngineMemory<SUBAPERTURES, OPEN_WINDOWS, POOL_ENTRIES>,
+    pub engine: &'a mut StaticEngineMemory<SUBAPERTURES, OPEN_WINDOWS, POOL_ENTRIES, 0, 0>,
     pub order: &'a mut [u16],
     pub scratch: &'a mut [u16],
     pub results: &'a mut [SubapertureResult],

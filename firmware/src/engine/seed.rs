@@ -1,0 +1,77 @@
+//! Where a window's admission threshold starts: its *seed*, from the cutoff
+//! of its previous frames (see [`super::select`]).
+//!
+//! A sub-aperture's spot changes little between frames, so its previous
+//! cutoff (e.g. `v(N+1)`) less a margin is a threshold that almost every
+//! pixel fails and that almost never leaves out a pixel the rule needs. The
+//! margin follows how much the cutoff moves from frame to frame (the largest
+//! recent change, decaying slowly), and doubles when the seed was too high.
+//! Only speed depends on the seed, never a result: a seed too high costs a
+//! rescan of the window, a seed too low more candidates.
+
+/// A sub-aperture's memory of its cutoffs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Seed {
+    /// The previous frame's cutoff; `NONE` before the first frame. Stored
+    /// as `previous ^ NONE`, so that the reset state is all zero bits.
+    biased: i32,
+    /// The largest recent change of the cutoff between frames, decaying by
+    /// 1/16 a frame, in 1/16 of a calibrated unit.
+    spread: i32,
+}
+
+/// No seed: every pixel is a candidate.
+const NONE: i32 = i32::MIN;
+
+/// The spread decays by 2^-DECAY_BITS of itself each frame.
+const DECAY_BITS: u32 = 5;
+
+/// The spread a sub-aperture starts with, before its cutoff has moved:
+/// one count.
+const INITIAL_SPREAD: i32 = 16 << 4;
+
+impl Seed {
+    pub const RESET: Seed = Seed {
+        biased: 0,
+        spread: 0,
+    };
+
+    fn previous(&self) -> i32 {
+        self.biased ^ NONE
+    }
+
+    /// The next frame's hint (the previous cutoff) and admission threshold
+    /// (the hint less the margin); both `i32::MIN` before the first frame.
+    #[inline(always)]
+    pub fn thresholds(&self) -> (i32, i32) {
+        let previous = self.previous();
+        if previous == NONE {
+            return (NONE, NONE);
+        }
+        // One and a half times the largest recent change, plus one unit.
+        // Saturating: a cutoff is below 2^26 in magnitude, the spread below
+        // 2^30.
+        let margin = ((self.spread + (self.spread >> 1)) >> 4).saturating_add(1);
+        (previous, previous.saturating_sub(margin))
+    }
+
+    /// The frame's cutoff is known; `too_high` if the seed left out a pixel
+    /// the rule needed (the window was rescanned).
+    pub fn observe(&mut self, cutoff: i32, too_high: bool) {
+        let previous = self.previous();
+        if previous != NONE {
+            // Spread in 1/16 units: 16 * |change|, saturated.
+            let change = (cutoff as i64 - previous as i64).unsigned_abs();
+            let change = (change.saturating_mul(16)).min(1 << 29) as i32;
+            let decayed = self.spread - (self.spread >> DECAY_BITS);
+            let mut next = decayed.max(change);
+            if too_high {
+                next = next.max(2 * change);
+            }
+            self.spread = next;
+        } else {
+            self.spread = INITIAL_SPREAD;
+        }
+        self.biased = cutoff ^ NONE;
+    }
+}
