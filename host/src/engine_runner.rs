@@ -76,9 +76,10 @@ impl EngineBuffers {
         Engine::new(config, self.memory())
     }
 
-    /// Forgets the filtered levels (SPEC.md §4) kept in this memory.
+    /// Forgets the filtered levels (SPEC.md §4) kept in this memory, and
+    /// the seeds.
     pub fn reset_level_filters(&mut self) {
-        self.level_filters.fill(LevelFilterState::RESET);
+        self.subapertures.fill(SubapertureState::RESET);
     }
 
     pub fn memory(&mut self) -> EngineMemory<'_> {
