@@ -650,6 +650,10 @@ struct FileConfig {
     selection: FileSelection,
     #[serde(default)]
     centroid: FileCentroid,
+    /// What `brightpix tune` assumed and found: a record for people, not
+    /// read by the loader (any content is accepted and ignored).
+    #[serde(default, rename = "tuned")]
+    _tuned: Option<toml::Table>,
 }
 
 #[derive(Deserialize)]

@@ -109,8 +109,8 @@ fn main_conclusions_hold_at_the_paper_defaults() {
     });
     let bg_scores = evaluate(&bg, &[sn, th], &[20], &|| {}).unwrap();
     assert_eq!(
-        get(&bg_scores, sn, 20).squared_errors,
-        get(&scores, sn, 20).squared_errors,
+        get(&bg_scores, sn, 20).errors,
+        get(&scores, sn, 20).errors,
         "subtract-next must not see a constant background error"
     );
     assert_better(

@@ -1,7 +1,7 @@
 //! `brightpix paper`: regenerate the seed paper's §3 figures with the engine.
 
 use crate::evaluation::figures::{run_and_write, RunOptions, FIGURES};
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use clap::Args;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -9,9 +9,11 @@ use std::time::Instant;
 #[derive(Args)]
 #[command(
     about = "Regenerate the paper's figures (Basden, Myers & Gendron 2011, §3) with the engine's arithmetic: CSV + SVG + summary per figure",
-    after_help = "Figures: spot-size, signal, background-error, read-noise, outer-scale, seeing, rayleigh,\n\
-sodium, subaperture-size, subaperture-size-fov, linearity, rules (all brightpix rules at the\n\
-defaults), or all.\n\n\
+    after_help = "Figures: spots (the spot-image panels), spot-size, signal, background-error, read-noise,\n\
+outer-scale, seeing, rayleigh, sodium, subaperture-size, subaperture-size-fov, sodium-paper (Fig. 9b\n\
+with the beacon width that gives the paper's optimum), linearity, rules (all brightpix rules at\n\
+the defaults, 4 seeds), or all; and sensitivity (how the model's own choices move the\n\
+conclusions: spot and seeing, sodium beacon, profile and direction, clipped all-pixel reference).\n\n\
 R is the paper's eq. 1: RMS over independent turbulence realisations of (centre of gravity of\n\
 the noiseless image, all pixels, f64) minus (the engine's slope from the noisy image with the\n\
 rule and N). Each case is simulated once and the engine run for every (rule, N) on the same\n\
@@ -24,7 +26,8 @@ pub struct PaperArgs {
     /// Output directory (created).
     #[arg(long)]
     out: PathBuf,
-    /// Frames per case (default: 20000; sodium 8000; linearity: tilt steps, 301).
+    /// Frames per case, >= 20 (default: 20000; sodium 8000; sensitivity 8000/4000; linearity:
+    /// tilt steps, 301).
     #[arg(long)]
     frames: Option<usize>,
     /// Seed of the random streams.
@@ -35,18 +38,39 @@ pub struct PaperArgs {
     quick: bool,
 }
 
-pub fn run(args: PaperArgs) -> Result<()> {
+/// The figures `args` names, with every argument checked before any work.
+fn check(args: &PaperArgs) -> Result<Vec<&str>> {
     let names: Vec<&str> = if args.figure == "all" {
         FIGURES.to_vec()
-    } else if FIGURES.contains(&args.figure.as_str()) {
+    } else if FIGURES.contains(&args.figure.as_str()) || args.figure == "sensitivity" {
         vec![args.figure.as_str()]
     } else {
         bail!(
-            "unknown figure {:?}; one of: {}, all",
+            "unknown figure {:?}; one of: {}, all, sensitivity",
             args.figure,
             FIGURES.join(", ")
         );
     };
+    if let Some(k) = args.frames {
+        if k < 20 {
+            bail!("--frames {k}: at least 20 frames per case (or tilt steps) are needed");
+        }
+        if args.quick {
+            bail!("--frames and --quick both set the number of frames: give one");
+        }
+    }
+    if args.out.exists() && !args.out.is_dir() {
+        bail!(
+            "--out {}: exists and is not a directory",
+            args.out.display()
+        );
+    }
+    std::fs::create_dir_all(&args.out).with_context(|| format!("--out {}", args.out.display()))?;
+    Ok(names)
+}
+
+pub fn run(args: PaperArgs) -> Result<()> {
+    let names = check(&args)?;
     let opts = RunOptions {
         out: args.out.clone(),
         frames: args.frames,
@@ -72,4 +96,46 @@ pub fn run(args: PaperArgs) -> Result<()> {
     }
     eprintln!("brightpix: total {:.1} s", started.elapsed().as_secs_f64());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{Cli, Command};
+    use clap::Parser;
+
+    fn run(argv: &[&str]) -> anyhow::Result<()> {
+        match Cli::try_parse_from(argv).expect("valid arguments").command {
+            Command::Paper(a) => super::run(a),
+            _ => unreachable!(),
+        }
+    }
+
+    #[test]
+    fn bad_arguments_fail_before_any_work() {
+        let dir = std::env::temp_dir().join(format!("brightpix-paper-args-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let out = dir.join("out");
+        let o = out.to_str().unwrap();
+        let started = std::time::Instant::now();
+        let e = run(&["brightpix", "paper", "all", "--out", o, "--frames", "0"]).unwrap_err();
+        assert!(e.to_string().contains("at least 20"), "{e}");
+        let e = run(&["brightpix", "paper", "nope", "--out", o]).unwrap_err();
+        assert!(e.to_string().contains("unknown figure"), "{e}");
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("file");
+        std::fs::write(&file, "x").unwrap();
+        let e = run(&[
+            "brightpix",
+            "paper",
+            "signal",
+            "--out",
+            file.to_str().unwrap(),
+        ])
+        .unwrap_err();
+        assert!(e.to_string().contains("not a directory"), "{e}");
+        // Nothing was simulated: no output was written.
+        assert!(!out.exists() || std::fs::read_dir(&out).unwrap().next().is_none());
+        assert!(started.elapsed().as_secs() < 5);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

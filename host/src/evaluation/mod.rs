@@ -25,6 +25,8 @@
 
 pub mod figures;
 pub mod plot;
+pub mod recorded;
+pub mod stats;
 pub mod tune;
 
 use anyhow::{anyhow, Context, Result};
@@ -35,12 +37,16 @@ use crate::config_file::{PixelCounts, ProcessingConfig};
 use crate::engine_runner::HostEngine;
 use crate::simulator::{SimulationParams, Simulator, SpotFrame};
 
-/// A selection rule with an optional level filter (SPEC.md §3-4).
+/// A selection rule with an optional level filter (SPEC.md §3-4), and
+/// optionally a calibration threshold at 0 counts that clips negative
+/// (background-subtracted) pixels to 0 before selection.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Method {
     pub rule: SelectionRule,
     /// Gain shift of the temporal level filter, if any.
     pub level_filter: Option<u8>,
+    /// Clip pixels below 0 counts to 0 (a threshold of 0, SPEC.md §2).
+    pub clip_negative: bool,
 }
 
 impl Method {
@@ -48,16 +54,19 @@ impl Method {
     pub const SUBTRACT_NEXT: Method = Method {
         rule: SelectionRule::SubtractNext,
         level_filter: None,
+        clip_negative: false,
     };
     /// The paper's selection without subtraction.
     pub const THRESHOLD: Method = Method {
         rule: SelectionRule::Threshold,
         level_filter: None,
+        clip_negative: false,
     };
     /// DARC as flown.
     pub const SUBTRACT_NEXT_DISTINCT: Method = Method {
         rule: SelectionRule::SubtractNextDistinct,
         level_filter: None,
+        clip_negative: false,
     };
 
     /// Subtract the mean of the M values below v(N).
@@ -65,14 +74,23 @@ impl Method {
         Method {
             rule: SelectionRule::SubtractMean { count: m },
             level_filter: None,
+            clip_negative: false,
         }
     }
 
     /// This rule with a level filter of gain `2^-gain_shift`.
     pub const fn with_level_filter(self, gain_shift: u8) -> Method {
         Method {
-            rule: self.rule,
             level_filter: Some(gain_shift),
+            ..self
+        }
+    }
+
+    /// This rule after clipping negative pixels to 0.
+    pub const fn clipped(self) -> Method {
+        Method {
+            clip_negative: true,
+            ..self
         }
     }
 
@@ -85,9 +103,14 @@ impl Method {
             SelectionRule::SubtractNextDistinct => "subtract-next-distinct".to_string(),
             SelectionRule::SubtractMean { count } => format!("subtract-mean(M={count})"),
         };
-        match self.level_filter {
+        let rule = match self.level_filter {
             Some(g) => format!("{rule}+filter(g={g})"),
             None => rule,
+        };
+        if self.clip_negative {
+            format!("{rule}+clip0")
+        } else {
+            rule
         }
     }
 }
@@ -108,6 +131,11 @@ pub struct Batch {
     pub true_slopes: Vec<[f64; 2]>,
     /// Pixels clamped at the camera's maximum, over all frames.
     pub saturated: usize,
+    /// Unit vector of the LGS elongation on the detector (`[1, 0]` for a
+    /// NGS): the direction of [`Axis::Along`].
+    pub direction: [f64; 2],
+    /// Sum over frames of [`SpotFrame::field_fraction`].
+    pub field_fraction_sum: f64,
 }
 
 impl Batch {
@@ -120,7 +148,15 @@ impl Batch {
             raw: Vec::new(),
             true_slopes: Vec::new(),
             saturated: 0,
+            direction: sim.params().source.elongation_direction(),
+            field_fraction_sum: 0.0,
         }
+    }
+
+    /// Mean fraction of the spot's light on the detector (1: nothing
+    /// truncated).
+    pub fn field_fraction(&self) -> f64 {
+        self.field_fraction_sum / self.len().max(1) as f64
     }
 
     /// Appends simulated frames (their noiseless images are dropped).
@@ -130,6 +166,7 @@ impl Batch {
             self.raw.extend_from_slice(&f.raw);
             self.true_slopes.push(f.true_slope);
             self.saturated += f.saturated;
+            self.field_fraction_sum += f.field_fraction;
         }
     }
 
@@ -198,6 +235,7 @@ impl Batch {
         config.level_filter = method
             .level_filter
             .map(|gain_shift| LevelFilter { gain_shift });
+        config.threshold = method.clip_negative.then_some(0);
         config
     }
 
@@ -227,21 +265,22 @@ impl Batch {
         Ok((slopes, invalid))
     }
 
-    /// Scores `method` with `pixels`: per-frame squared errors against the
-    /// true slopes.
+    /// Scores `method` with `pixels`: per-frame errors against the true
+    /// slopes.
     pub fn score(&self, method: Method, pixels: usize) -> Result<Score> {
         let (slopes, invalid) = self.engine_slopes(method, pixels)?;
-        let squared_errors = slopes
+        let errors = slopes
             .iter()
             .zip(&self.true_slopes)
-            .map(|(s, t)| [(s[0] - t[0]).powi(2), (s[1] - t[1]).powi(2)])
+            .map(|(s, t)| [s[0] - t[0], s[1] - t[1]])
             .collect();
         Ok(Score {
             method,
             pixels: pixels.min(self.pixel_count()),
             all_pixels: pixels >= self.pixel_count(),
             invalid,
-            squared_errors,
+            errors,
+            direction: self.direction,
         })
     }
 }
@@ -254,6 +293,10 @@ pub enum Axis {
     /// Both components pooled (per frame, the mean of the two squared
     /// errors): for a NGS, where x and y have the same statistics.
     Both,
+    /// Parallel to the LGS elongation (the paper's worst case; x for a NGS).
+    Along,
+    /// Perpendicular to the LGS elongation (y for a NGS).
+    Across,
 }
 
 impl Axis {
@@ -262,14 +305,20 @@ impl Axis {
             Axis::X => "x",
             Axis::Y => "y",
             Axis::Both => "x and y",
+            Axis::Along => "along the elongation",
+            Axis::Across => "across the elongation",
         }
     }
 
-    fn value(&self, e: &[f64; 2]) -> f64 {
+    /// The squared error on this axis of the error `e = [ex, ey]`, with
+    /// `u` the elongation direction.
+    pub fn squared(&self, e: &[f64; 2], u: [f64; 2]) -> f64 {
         match self {
-            Axis::X => e[0],
-            Axis::Y => e[1],
-            Axis::Both => 0.5 * (e[0] + e[1]),
+            Axis::X => e[0] * e[0],
+            Axis::Y => e[1] * e[1],
+            Axis::Both => 0.5 * (e[0] * e[0] + e[1] * e[1]),
+            Axis::Along => (e[0] * u[0] + e[1] * u[1]).powi(2),
+            Axis::Across => (e[1] * u[0] - e[0] * u[1]).powi(2),
         }
     }
 }
@@ -282,7 +331,7 @@ pub struct Estimate {
 }
 
 /// Mean and standard error of the mean.
-fn mean_se(values: impl Iterator<Item = f64> + Clone) -> (f64, f64) {
+pub(crate) fn mean_se(values: impl Iterator<Item = f64> + Clone) -> (f64, f64) {
     let (mut n, mut sum) = (0usize, 0.0);
     for v in values.clone() {
         n += 1;
@@ -310,14 +359,22 @@ pub struct Score {
     pub all_pixels: bool,
     /// Frames the engine found invalid (flux <= 0; slope 0).
     pub invalid: usize,
-    /// Per frame, `[(S_true - S_est)^2]` for x and y (pixels^2).
-    pub squared_errors: Vec<[f64; 2]>,
+    /// Per frame, `S_est - S_true` for x and y (pixels).
+    pub errors: Vec<[f64; 2]>,
+    /// Unit vector of the elongation ([`Axis::Along`]).
+    pub direction: [f64; 2],
 }
 
 impl Score {
+    /// Per-frame squared errors on `axis`.
+    pub fn squared(&self, axis: Axis) -> impl Iterator<Item = f64> + Clone + '_ {
+        let u = self.direction;
+        self.errors.iter().map(move |e| axis.squared(e, u))
+    }
+
     /// `R^2` (mean squared error) and its standard error.
     pub fn mse(&self, axis: Axis) -> Estimate {
-        let (value, se) = mean_se(self.squared_errors.iter().map(|e| axis.value(e)));
+        let (value, se) = mean_se(self.squared(axis));
         Estimate { value, se }
     }
 
@@ -335,13 +392,12 @@ impl Score {
     /// the paired difference (common random numbers): negative means `self`
     /// is better.
     pub fn paired_difference(&self, other: &Score, axis: Axis) -> Estimate {
-        assert_eq!(self.squared_errors.len(), other.squared_errors.len());
+        assert_eq!(self.errors.len(), other.errors.len());
         // mean(a - b) = R_a^2 - R_b^2 exactly; its spread gives the error.
         let (_, se) = mean_se(
-            self.squared_errors
-                .iter()
-                .zip(&other.squared_errors)
-                .map(|(a, b)| axis.value(a) - axis.value(b)),
+            self.squared(axis)
+                .zip(other.squared(axis))
+                .map(|(a, b)| a - b),
         );
         let (ra, rb) = (self.r(axis).value, other.r(axis).value);
         // R_a^2 - R_b^2 = (R_a - R_b)(R_a + R_b)

@@ -51,7 +51,7 @@ fn evaluate_covers_every_combination_once() {
     // All pixels is the same computation whatever the rule.
     let a = all_pixels(&scores, Method::SUBTRACT_NEXT).unwrap();
     let b = all_pixels(&scores, Method::THRESHOLD).unwrap();
-    assert_eq!(a.squared_errors, b.squared_errors);
+    assert_eq!(a.errors, b.errors);
     let d = a.paired_difference(b, Axis::Both);
     assert_eq!(d.value, 0.0);
     assert!(find(&scores, Method::SUBTRACT_NEXT, 20).is_some());
@@ -75,10 +75,10 @@ fn subtract_next_is_exactly_blind_to_a_constant_background_error() {
     );
     let sa = a.score(Method::SUBTRACT_NEXT, 20).unwrap();
     let sb = b.score(Method::SUBTRACT_NEXT, 20).unwrap();
-    assert_eq!(sa.squared_errors, sb.squared_errors);
+    assert_eq!(sa.errors, sb.errors);
     let ta = a.score(Method::THRESHOLD, 20).unwrap();
     let tb = b.score(Method::THRESHOLD, 20).unwrap();
-    assert_ne!(ta.squared_errors, tb.squared_errors);
+    assert_ne!(ta.errors, tb.errors);
 }
 
 #[test]
@@ -88,14 +88,28 @@ fn statistics() {
         pixels: 1,
         all_pixels: false,
         invalid: 0,
-        squared_errors: vec![[1.0, 3.0], [1.0, 3.0], [4.0, 0.0], [4.0, 0.0]],
+        errors: vec![
+            [1.0, 3f64.sqrt()],
+            [-1.0, -(3f64.sqrt())],
+            [2.0, 0.0],
+            [-2.0, 0.0],
+        ],
+        direction: [1.0, 0.0],
     };
     let x = s.mse(Axis::X);
     assert_eq!(x.value, 2.5);
     // sample sd of [1,1,4,4] = sqrt(3), over sqrt(4)
     assert!((x.se - 3f64.sqrt() / 2.0).abs() < 1e-12);
-    assert_eq!(s.mse(Axis::Y).value, 1.5);
-    assert_eq!(s.mse(Axis::Both).value, 2.0);
+    assert!((s.mse(Axis::Y).value - 1.5).abs() < 1e-12);
+    assert!((s.mse(Axis::Both).value - 2.0).abs() < 1e-12);
+    assert_eq!(s.mse(Axis::Along).value, s.mse(Axis::X).value);
+    // Rotated by 90 degrees, along is y.
+    let r = Score {
+        direction: [0.0, 1.0],
+        ..s.clone()
+    };
+    assert!((r.mse(Axis::Along).value - 1.5).abs() < 1e-12);
+    assert!((r.mse(Axis::Across).value - 2.5).abs() < 1e-12);
     assert!((s.r(Axis::X).value - 2.5f64.sqrt()).abs() < 1e-12);
     let grid = default_pixel_grid(256);
     assert_eq!(grid.first(), Some(&1));

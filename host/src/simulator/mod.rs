@@ -96,6 +96,7 @@
 //! depend on threads, and runs that differ only in noise parameters share
 //! the same turbulence (common random numbers).
 
+pub mod camera;
 mod optics;
 mod params;
 pub mod turbulence;
@@ -112,8 +113,8 @@ use rayon::prelude::*;
 use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
 
-pub use optics::{Geometry, AIRY_DIAMETER_LAMBDA_OVER_D};
-pub use params::{Sampling, SimulationParams, Source};
+pub use optics::{Geometry, AIRY_DIAMETER_LAMBDA_OVER_D, AIRY_FWHM_PER_DIAMETER, HWHM_PER_SIGMA};
+pub use params::{Sampling, SimulationParams, Source, SpotModel, SubaperturePupil};
 pub use turbulence::{gtilt_variance_rad2, von_karman_psd, ARCSEC_PER_RAD};
 
 use turbulence::{ScreenBuffers, ScreenGenerator};
@@ -145,6 +146,11 @@ pub struct SpotFrame {
     pub phase_slope: [f64; 2],
     /// Pixels clamped at the camera's maximum count.
     pub saturated: usize,
+    /// The fraction of the spot's light (on the computed image grid, see
+    /// [`Geometry::image_grid_pixels`]) that falls on the detector: below 1
+    /// the sub-aperture truncates the spot (the rest is lost, like behind a
+    /// field stop, and `noiseless` is normalised to `photons` without it).
+    pub field_fraction: f64,
 }
 
 /// Reusable buffers for [`Simulator::frame_into`] (one per thread).
@@ -175,8 +181,7 @@ pub struct Simulator {
     /// For each image-grid DFT index, the PSF-grid samples (index, weight)
     /// at the same angle (see [`optics::grid_map`]).
     grid_map: Vec<[(usize, f64); 2]>,
-    tx: Vec<Complex<f64>>,
-    ty: Vec<Complex<f64>>,
+    transfers: optics::Transfers,
     max_count: f64,
 }
 
@@ -212,7 +217,21 @@ impl Simulator {
         let geometry = Geometry::new(&params)?;
         let g = &geometry;
         let mut planner = FftPlanner::new();
-        let pupil = optics::pupil_mask(g.pupil_samples, g.pupil_array);
+        let pupil = match &params.pupil {
+            None => optics::pupil_mask(g.pupil_samples, g.pupil_array),
+            Some(cut) => optics::cut_pupil_mask(
+                g.pupil_samples,
+                g.pupil_array,
+                g.subaperture_diameter_m,
+                params.telescope_diameter_m,
+                cut,
+            ),
+        };
+        if pupil.iter().all(|&a| a == 0.0) {
+            return Err(SimError::Invalid(
+                "the sub-aperture is entirely outside the telescope pupil".into(),
+            ));
+        }
         let screen = params.turbulence.then(|| {
             ScreenGenerator::new(
                 g.screen_fft_size,
@@ -228,7 +247,7 @@ impl Simulator {
         let fft_img = planner.plan_fft_forward(g.image_fft_size);
         let ifft_small = planner.plan_fft_inverse(g.image_grid_pixels);
         let grid_map = optics::grid_map(g.psf_fft_size, g.image_fft_size);
-        let (tx, ty) = optics::axis_transfers(g, &params.source);
+        let transfers = optics::transfers(g, &params.source);
         let max_count = ((1u32 << params.bit_depth) - 1) as f64;
         Ok(Self {
             params,
@@ -239,8 +258,7 @@ impl Simulator {
             fft_img,
             ifft_small,
             grid_map,
-            tx,
-            ty,
+            transfers,
             max_count,
         })
     }
@@ -343,7 +361,45 @@ impl Simulator {
         tilt_px: [f64; 2],
     ) -> SpotFrame {
         let phase_slope = self.pupil_phase(ws, frame_index, seed, tilt_px);
-        let noiseless = self.spot_image(ws);
+        self.image_and_camera(ws, frame_index, seed, phase_slope)
+    }
+
+    /// Side of the lenslet's phase array (samples), and the sample spacing
+    /// (m): the shape [`Simulator::frame_from_phase`] takes.
+    pub fn phase_sampling(&self) -> (usize, f64) {
+        (self.geometry.pupil_array, self.geometry.pupil_sample_m)
+    }
+
+    /// One frame from a given lenslet phase instead of the simulator's own
+    /// independent screen: `opd_m` is the optical path difference (m) over
+    /// the `n x n` samples of [`Simulator::phase_sampling`], row-major
+    /// `[y][x]`, e.g. cut from a layered atmosphere. Photon and read noise
+    /// are drawn from the streams of `(seed, frame_index)` as for
+    /// [`Simulator::frame_into`].
+    pub fn frame_from_opd(
+        &self,
+        ws: &mut Workspace,
+        opd_m: &[f64],
+        frame_index: u64,
+        seed: u64,
+    ) -> SpotFrame {
+        let ns = self.geometry.pupil_array;
+        assert_eq!(opd_m.len(), ns * ns, "OPD must be {ns}x{ns} samples");
+        let k = 2.0 * std::f64::consts::PI / self.geometry.effective_wavelength_m;
+        ws.phase.clear();
+        ws.phase.extend(opd_m.iter().map(|v| v * k));
+        let phase_slope = self.phase_gtilt(&ws.phase);
+        self.image_and_camera(ws, frame_index, seed, phase_slope)
+    }
+
+    fn image_and_camera(
+        &self,
+        ws: &mut Workspace,
+        frame_index: u64,
+        seed: u64,
+        phase_slope: [f64; 2],
+    ) -> SpotFrame {
+        let (noiseless, field_fraction) = self.spot_image(ws);
         let npx = self.size();
         let mut sx = 0.0;
         let mut sy = 0.0;
@@ -366,6 +422,7 @@ impl Simulator {
             true_slope,
             phase_slope,
             saturated,
+            field_fraction,
         }
     }
 
@@ -399,9 +456,16 @@ impl Simulator {
                 }
             }
         }
-        // G-tilt: pupil-weighted mean of the finite differences.
+        self.phase_gtilt(&ws.phase)
+    }
+
+    /// G-tilt of a lenslet phase (radians at the effective wavelength) in
+    /// pixels: the pupil-weighted mean of the finite differences.
+    fn phase_gtilt(&self, ph: &[f64]) -> [f64; 2] {
+        let g = &self.geometry;
+        let ns = g.pupil_array;
+        let k = 2.0 * std::f64::consts::PI * g.oversampling as f64 / g.psf_fft_size as f64;
         let a = &self.pupil;
-        let ph = &ws.phase;
         let (mut gx, mut wx, mut gy, mut wy) = (0.0, 0.0, 0.0, 0.0);
         for y in 0..ns {
             for x in 0..ns {
@@ -421,8 +485,9 @@ impl Simulator {
         [gx / wx / k, gy / wy / k]
     }
 
-    /// From `ws.phase`, the noiseless detector image normalised to `photons`.
-    fn spot_image(&self, ws: &mut Workspace) -> Vec<f64> {
+    /// From `ws.phase`, the noiseless detector image normalised to `photons`,
+    /// and the fraction of the grid's light on the detector.
+    fn spot_image(&self, ws: &mut Workspace) -> (Vec<f64>, f64) {
         let g = &self.geometry;
         let (ns, mp, mi, nimg) = (
             g.pupil_array,
@@ -483,17 +548,28 @@ impl Simulator {
         // Multiply by the transfer functions and fold onto the pixel grid.
         ws.folded_x.clear();
         ws.folded_x.resize(mi * nimg, Complex::default());
+        let tr = &self.transfers;
         for ky in 0..mi {
             let row = &ws.image_t[ky * mi..(ky + 1) * mi];
             let out = &mut ws.folded_x[ky * nimg..(ky + 1) * nimg];
-            for (kx, (v, t)) in row.iter().zip(&self.tx).enumerate() {
-                out[kx % nimg] += v * t;
+            match &tr.rotated {
+                None => {
+                    for (kx, (v, t)) in row.iter().zip(&tr.x).enumerate() {
+                        out[kx % nimg] += v * t;
+                    }
+                }
+                Some(rot) => {
+                    let r = &rot[ky * mi..(ky + 1) * mi];
+                    for (kx, ((v, t), e)) in row.iter().zip(&tr.x).zip(r).enumerate() {
+                        out[kx % nimg] += v * t * e;
+                    }
+                }
             }
         }
         ws.small.clear();
         ws.small.resize(nimg * nimg, Complex::default());
         for ky in 0..mi {
-            let t = self.ty[ky];
+            let t = tr.y[ky];
             let src = &ws.folded_x[ky * nimg..(ky + 1) * nimg];
             let dst = &mut ws.small[(ky % nimg) * nimg..(ky % nimg + 1) * nimg];
             for (d, s) in dst.iter_mut().zip(src) {
@@ -518,9 +594,10 @@ impl Simulator {
             }
         }
         let total: f64 = img.iter().sum();
+        let grid_total: f64 = ws.small_t.iter().map(|v| v.re.max(0.0)).sum();
         let scale = self.params.photons / total;
         img.iter_mut().for_each(|v| *v *= scale);
-        img
+        (img, (total / grid_total).min(1.0))
     }
 
     /// The camera: photon noise, read noise, gain, background, digitisation.

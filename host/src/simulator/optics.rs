@@ -3,9 +3,10 @@
 
 use std::f64::consts::PI;
 
+use rayon::prelude::*;
 use rustfft::num_complex::Complex;
 
-use super::params::{SimulationParams, Source};
+use super::params::{SimulationParams, Source, SpotModel, SubaperturePupil};
 use super::turbulence::ARCSEC_PER_RAD;
 use super::SimError;
 
@@ -17,7 +18,11 @@ pub const AIRY_DIAMETER_LAMBDA_OVER_D: f64 = 2.0 * 3.831_705_970_207_512 / PI;
 const FWHM_PER_SIGMA: f64 = 2.354_820_045_030_949;
 
 /// Half width at half maximum of a Gaussian over its sigma.
-const HWHM_PER_SIGMA: f64 = FWHM_PER_SIGMA / 2.0;
+pub const HWHM_PER_SIGMA: f64 = FWHM_PER_SIGMA / 2.0;
+
+/// FWHM of an Airy pattern over its diameter to the first dark ring
+/// (1.029 / 2.439).
+pub const AIRY_FWHM_PER_DIAMETER: f64 = 1.028_993_969_962_188 / AIRY_DIAMETER_LAMBDA_OVER_D;
 
 /// Numbers derived from [`SimulationParams`] that fix the numerical model.
 /// See the module documentation for what they mean.
@@ -45,6 +50,13 @@ pub struct Geometry {
     /// The wavelength at which a `d` aperture gives the requested Airy
     /// diameter; the turbulent phase is computed at it.
     pub effective_wavelength_m: f64,
+    /// Airy diameter of the computed diffraction (arcsec): the stated one
+    /// for [`SpotModel::EffectiveWavelength`], that of the WFS wavelength
+    /// otherwise.
+    pub diffraction_airy_arcsec: f64,
+    /// FWHM of the static Gaussian optics blur (arcsec; only
+    /// [`SpotModel::WfsWavelengthBlurred`]).
+    pub optics_blur_fwhm_arcsec: f64,
     /// Fried parameter at the WFS wavelength (m).
     pub r0_wfs_m: f64,
     /// Fried parameter at the effective wavelength (m).
@@ -59,6 +71,9 @@ pub struct Geometry {
     pub elongation_extent_arcsec: f64,
     /// RMS of the LGS elongation profile (arcsec); 0 for a NGS.
     pub elongation_rms_arcsec: f64,
+    /// Angular span holding 99.9% of the LGS elongation profile (arcsec);
+    /// 0 for a NGS. The image grid is made large enough to hold it.
+    pub elongation_span_arcsec: f64,
 }
 
 /// Smallest integer `>= n` whose prime factors are all 2, 3, 5 or 7.
@@ -123,7 +138,24 @@ impl Geometry {
     pub(crate) fn new(p: &SimulationParams) -> Result<Self, SimError> {
         let d = p.subaperture_diameter_m();
         let pix = p.pixel_scale_arcsec;
-        let airy = p.airy_diameter_arcsec;
+        let airy = match p.spot_model {
+            SpotModel::EffectiveWavelength => p.airy_diameter_arcsec,
+            SpotModel::WfsWavelength | SpotModel::WfsWavelengthBlurred => {
+                p.diffraction_airy_diameter_arcsec()
+            }
+        };
+        let blur = match p.spot_model {
+            SpotModel::WfsWavelengthBlurred => {
+                let stated = AIRY_FWHM_PER_DIAMETER * p.airy_diameter_arcsec;
+                let diffraction = AIRY_FWHM_PER_DIAMETER * airy;
+                (stated * stated - diffraction * diffraction)
+                    .max(0.0)
+                    .sqrt()
+            }
+            _ => 0.0,
+        };
+        let profile = elongation_profile(&p.source);
+        let span = profile.as_ref().map_or(0.0, |prof| prof.span(0.999));
         let s = &p.sampling;
         // Nyquist for the intensity: fine sample <= lambda_eff / (2 d)
         // = airy / (2 * 2.44).
@@ -133,7 +165,13 @@ impl Geometry {
             None => ((1.1 * q_nyquist).ceil() as usize).max(2),
         };
         let npx = p.pixels_per_subaperture as usize;
-        let margin = (((s.fov_factor - 1.0) * npx as f64) / 2.0).ceil() as usize;
+        // The grid holds fov_factor detector fields, and at least the LGS
+        // profile's span plus four core widths: elongated light beyond the
+        // detector must land on the grid (where it is dropped, like a field
+        // stop) rather than wrap around onto the detector.
+        let needed_px = (span + 4.0 * (airy + blur + spot_fwhm(&p.source))) / pix;
+        let lgs_margin = ((needed_px - npx as f64) / 2.0).max(0.0);
+        let margin = ((((s.fov_factor - 1.0) * npx as f64) / 2.0).max(lgs_margin)).ceil() as usize;
         let n_img = npx + 2 * margin;
         let m_img = q * n_img;
         let delta_fine = pix / q as f64;
@@ -174,7 +212,7 @@ impl Geometry {
                 l
             }
         };
-        let (extent, rms) = match elongation_profile(&p.source) {
+        let (extent, rms) = match profile {
             Some(prof) => {
                 let lo = prof.angles.iter().cloned().fold(f64::INFINITY, f64::min);
                 let hi = prof
@@ -217,14 +255,59 @@ impl Geometry {
             pupil_array: n_s,
             pupil_sample_m: delta_pupil,
             effective_wavelength_m: lambda_eff,
+            diffraction_airy_arcsec: airy,
+            optics_blur_fwhm_arcsec: blur,
             r0_wfs_m: p.r0_at_wavelength(p.wavelength_m),
             r0_effective_m: p.r0_at_wavelength(lambda_eff),
             screen_fft_size: g,
             subharmonic_levels: levels,
             elongation_extent_arcsec: extent,
             elongation_rms_arcsec: rms,
+            elongation_span_arcsec: span,
         })
     }
+}
+
+/// The lenslet pupil of a sub-aperture that the telescope pupil cuts:
+/// [`pupil_mask`] times the part of each sample inside the telescope's
+/// annulus (diameter `telescope_m`, obscuration `pupil.obscuration_m`), the
+/// sub-aperture's centre at `pupil.centre_m` from the telescope's axis, `d`
+/// the sub-aperture diameter (m). 16x16 sub-samples per sample.
+pub(crate) fn cut_pupil_mask(
+    n_d: f64,
+    n_s: usize,
+    d: f64,
+    telescope_m: f64,
+    pupil: &SubaperturePupil,
+) -> Vec<f64> {
+    const SUB: usize = 16;
+    let r = n_d / 2.0;
+    let c = n_s as f64 / 2.0;
+    let metres_per_sample = d / n_d;
+    let (r_out, r_in) = (telescope_m / 2.0, pupil.obscuration_m / 2.0);
+    let mut a = vec![0.0; n_s * n_s];
+    for y in 0..n_s {
+        for x in 0..n_s {
+            let mut inside = 0usize;
+            for i in 0..SUB {
+                let px = x as f64 - c + (i as f64 + 0.5) / SUB as f64;
+                for j in 0..SUB {
+                    let py = y as f64 - c + (j as f64 + 0.5) / SUB as f64;
+                    if px.hypot(py) > r {
+                        continue;
+                    }
+                    let tx = pupil.centre_m[0] + px * metres_per_sample;
+                    let ty = pupil.centre_m[1] + py * metres_per_sample;
+                    let rho = tx.hypot(ty);
+                    if rho <= r_out && rho >= r_in {
+                        inside += 1;
+                    }
+                }
+            }
+            a[y * n_s + x] = inside as f64 / (SUB * SUB) as f64;
+        }
+    }
+    a
 }
 
 /// The lenslet pupil: amplitude transmission of each `n_s x n_s` sample, the
@@ -284,6 +367,59 @@ pub(crate) fn pupil_mask(n_d: f64, n_s: usize) -> Vec<f64> {
 pub(crate) struct ElongationProfile {
     pub angles: Vec<f64>,
     pub weights: Vec<f64>,
+}
+
+impl ElongationProfile {
+    /// The smallest angular interval holding `fraction` of the profile's
+    /// light, trimming equal tails (arcsec).
+    pub fn span(&self, fraction: f64) -> f64 {
+        let mut pairs: Vec<(f64, f64)> = self
+            .angles
+            .iter()
+            .copied()
+            .zip(self.weights.iter().copied())
+            .collect();
+        pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let tail = (1.0 - fraction) / 2.0;
+        let (mut acc, mut lo, mut hi) = (0.0, pairs[0].0, pairs[pairs.len() - 1].0);
+        for &(a, w) in &pairs {
+            acc += w;
+            if acc >= tail {
+                lo = a;
+                break;
+            }
+        }
+        acc = 0.0;
+        for &(a, w) in pairs.iter().rev() {
+            acc += w;
+            if acc >= tail {
+                hi = a;
+                break;
+            }
+        }
+        hi - lo
+    }
+
+    /// The profile binned on a grid of `step` arcsec (weights at the bins'
+    /// light-weighted mean angles): a few hundred samples instead of
+    /// thousands, for the 2-D transfer of a rotated elongation.
+    fn binned(&self, step: f64) -> ElongationProfile {
+        let lo = self.angles.iter().copied().fold(f64::INFINITY, f64::min);
+        let mut sums: std::collections::BTreeMap<i64, (f64, f64)> = Default::default();
+        for (&a, &w) in self.angles.iter().zip(&self.weights) {
+            let e = sums.entry(((a - lo) / step).floor() as i64).or_default();
+            e.0 += w * a;
+            e.1 += w;
+        }
+        let (mut angles, mut weights) = (Vec::new(), Vec::new());
+        for (_, (wa, w)) in sums {
+            if w > 0.0 {
+                angles.push(wa / w);
+                weights.push(w);
+            }
+        }
+        ElongationProfile { angles, weights }
+    }
 }
 
 /// Relative return per unit altitude.
@@ -366,47 +502,86 @@ pub(crate) fn profile_transfer(prof: &ElongationProfile, f: f64) -> Complex<f64>
     s
 }
 
-/// The per-axis transfer functions applied to the PSF's spectrum on the image
-/// grid (DFT order, length `image_fft_size`): the pixel's box response
-/// (integration over the pixel, exact), the source (unelongated LGS Gaussian
-/// in both axes, elongation along x), and the shift that puts the fine grid's
-/// sample `0` (the optical axis) at the centre of the detector, between the
-/// two middle pixels, so the decimated samples are the pixel centres.
-/// The Nyquist bin of an even transform is zeroed (the PSF has no power
-/// there) to keep the result real.
-pub(crate) fn axis_transfers(
-    g: &Geometry,
-    source: &Source,
-) -> (Vec<Complex<f64>>, Vec<Complex<f64>>) {
+/// The transfer functions applied to the PSF's spectrum on the image grid
+/// (DFT order, length `image_fft_size` per axis).
+pub(crate) struct Transfers {
+    /// Per axis: the pixel's box response (integration over the pixel,
+    /// exact), the source's and optics' Gaussian blur, the shift that puts
+    /// the fine grid's sample `0` (the optical axis) at the centre of the
+    /// detector, between the two middle pixels, so the decimated samples are
+    /// the pixel centres; for an elongation along x, also its profile (in
+    /// `x`).
+    pub x: Vec<Complex<f64>>,
+    pub y: Vec<Complex<f64>>,
+    /// A rotated elongation's transfer, `[ky][kx]` (not separable); `None`
+    /// when the elongation is along x (in `x`) or there is none.
+    pub rotated: Option<Vec<Complex<f64>>>,
+}
+
+/// The transfer functions of [`Transfers`]. The Nyquist bin of an even
+/// transform is zeroed (the PSF has no power there) to keep the result real.
+pub(crate) fn transfers(g: &Geometry, source: &Source) -> Transfers {
     let m = g.image_fft_size;
     let n_img = g.image_grid_pixels as f64;
-    let sigma = spot_fwhm(source) / FWHM_PER_SIGMA;
+    let fwhm = spot_fwhm(source).hypot(g.optics_blur_fwhm_arcsec);
+    let sigma = fwhm / FWHM_PER_SIGMA;
     let prof = elongation_profile(source);
+    let direction = source.elongation_direction();
+    let along_x = direction == [1.0, 0.0];
+    let freq = |k: usize| signed_index(k, m) as f64 / (m as f64 * g.fine_sample_arcsec);
+    let nyquist = |k: usize| m.is_multiple_of(2) && signed_index(k, m) == -(m as i64 / 2);
     let mut tx = Vec::with_capacity(m);
     let mut ty = Vec::with_capacity(m);
     for k in 0..m {
-        let ks = signed_index(k, m);
-        if m.is_multiple_of(2) && ks == -(m as i64 / 2) {
+        if nyquist(k) {
             tx.push(Complex::new(0.0, 0.0));
             ty.push(Complex::new(0.0, 0.0));
             continue;
         }
-        let ks = ks as f64;
+        let ks = signed_index(k, m) as f64;
         // pixel box: width q fine samples
         let arg = PI * ks / n_img;
         let pixel = if ks == 0.0 { 1.0 } else { arg.sin() / arg };
         // shift: evaluate at fine position -q (n_img - 1)/2 + q j
         let ph = -PI * ks * (n_img - 1.0) / n_img;
         let shift = Complex::new(ph.cos(), ph.sin());
-        let f = ks / (m as f64 * g.fine_sample_arcsec); // cycles/arcsec
+        let f = freq(k); // cycles/arcsec
         let gauss = (-2.0 * PI * PI * sigma * sigma * f * f).exp();
         let common = shift * (pixel * gauss);
         let elong = match &prof {
-            Some(p) => profile_transfer(p, f),
-            None => Complex::new(1.0, 0.0),
+            Some(p) if along_x => profile_transfer(p, f),
+            _ => Complex::new(1.0, 0.0),
         };
         tx.push(common * elong);
         ty.push(common);
     }
-    (tx, ty)
+    let rotated = match &prof {
+        Some(p) if !along_x => {
+            // A few hundred bins of a tenth of a fine sample: the binning
+            // moves light by at most 0.05 fine sample.
+            let coarse = p.binned(0.1 * g.fine_sample_arcsec);
+            let [c, s] = direction;
+            let rows: Vec<Vec<Complex<f64>>> = (0..m)
+                .into_par_iter()
+                .map(|ky| {
+                    (0..m)
+                        .map(|kx| {
+                            if nyquist(kx) || nyquist(ky) {
+                                Complex::new(0.0, 0.0)
+                            } else {
+                                profile_transfer(&coarse, c * freq(kx) + s * freq(ky))
+                            }
+                        })
+                        .collect()
+                })
+                .collect();
+            Some(rows.concat())
+        }
+        _ => None,
+    };
+    Transfers {
+        x: tx,
+        y: ty,
+        rotated,
+    }
 }

@@ -66,8 +66,72 @@ pub struct SimulationParams {
     pub bit_depth: u8,
     /// The guide star.
     pub source: Source,
+    /// How the stated Airy diameter and the WFS wavelength are reconciled
+    /// (the paper's 0.7" spot is not the 0.54" diffraction of a 0.6 m
+    /// sub-aperture at 640 nm): see [`SpotModel`].
+    pub spot_model: SpotModel,
+    /// The telescope pupil as this sub-aperture sees it (`None`: fully lit,
+    /// the paper's model). A partly lit sub-aperture's lenslet pupil is cut
+    /// by the telescope's edge or central obscuration. The image is still
+    /// normalised to `photons`: scale them by the lit fraction yourself.
+    pub pupil: Option<SubaperturePupil>,
     /// Numerical sampling (automatic by default).
     pub sampling: Sampling,
+}
+
+/// How the spot's diffraction core and the seeing are modelled.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SpotModel {
+    /// The paper's stated spot: diffraction of the sub-aperture at the
+    /// effective wavelength `theta_Airy d / 2.44` that gives the stated Airy
+    /// diameter (834 nm for 0.7" over 0.6 m), with the turbulence's phase at
+    /// that wavelength (so the seeing blur is that of 834 nm, d/r0 = 2.6).
+    #[default]
+    EffectiveWavelength,
+    /// Everything at the WFS wavelength: the Airy diameter is the
+    /// diffraction of `d` at `wavelength_m` (0.54" at 640 nm; the stated
+    /// `airy_diameter_arcsec` is ignored), the seeing that of `wavelength_m`.
+    WfsWavelength,
+    /// Diffraction and seeing at the WFS wavelength, plus a static Gaussian
+    /// blur (lenslet and optics aberrations) that widens the diffraction core
+    /// to the FWHM of the stated Airy spot: `FWHM_blur^2 = FWHM(stated)^2 -
+    /// FWHM(diffraction)^2`, with an Airy FWHM of 0.4219 of its diameter.
+    WfsWavelengthBlurred,
+}
+
+impl SpotModel {
+    /// Command-line name.
+    pub fn name(&self) -> &'static str {
+        match self {
+            SpotModel::EffectiveWavelength => "effective-wavelength",
+            SpotModel::WfsWavelength => "wfs-wavelength",
+            SpotModel::WfsWavelengthBlurred => "wfs-wavelength-blurred",
+        }
+    }
+
+    /// Parses [`SpotModel::name`].
+    pub fn parse(text: &str) -> Option<SpotModel> {
+        [
+            SpotModel::EffectiveWavelength,
+            SpotModel::WfsWavelength,
+            SpotModel::WfsWavelengthBlurred,
+        ]
+        .into_iter()
+        .find(|m| m.name() == text)
+    }
+}
+
+/// Where a sub-aperture sits in the telescope pupil: its lenslet pupil is
+/// the part of its circle of diameter `d` inside the annulus between the
+/// telescope diameter and the central obscuration.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SubaperturePupil {
+    /// Sub-aperture centre from the pupil centre, `[x, y]` (m).
+    pub centre_m: [f64; 2],
+    /// Diameter of the central obscuration (m); 0 for none.
+    pub obscuration_m: f64,
 }
 
 impl Default for SimulationParams {
@@ -90,14 +154,17 @@ impl Default for SimulationParams {
             gain_e_per_count: 1.0,
             bit_depth: 16,
             source: Source::Ngs,
+            spot_model: SpotModel::EffectiveWavelength,
+            pupil: None,
             sampling: Sampling::default(),
         }
     }
 }
 
-/// The guide star seen by the sub-aperture. Laser guide stars are elongated
-/// along the detector's x axis (columns), so the x slope is the one parallel
-/// to the elongation.
+/// The guide star seen by the sub-aperture. A laser guide star is elongated
+/// along the direction `elongation_angle_deg` on the detector (0: along x,
+/// the columns; 90: along y): radially away from the launch position, as
+/// seen from the sub-aperture.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Source {
@@ -117,6 +184,10 @@ pub enum Source {
         launch_offset_m: f64,
         /// FWHM of the unelongated beacon (a Gaussian), arcsec (0.28).
         spot_fwhm_arcsec: f64,
+        /// Direction of the elongation on the detector, degrees from +x
+        /// towards +y (0).
+        #[serde(default)]
+        elongation_angle_deg: f64,
     },
     /// A sodium beacon with a double-Gaussian sodium profile (paper §3.6.2).
     Sodium {
@@ -132,10 +203,49 @@ pub enum Source {
         launch_offset_m: f64,
         /// FWHM of the unelongated beacon (a Gaussian), arcsec (0.28).
         spot_fwhm_arcsec: f64,
+        /// Direction of the elongation on the detector, degrees from +x
+        /// towards +y (0).
+        #[serde(default)]
+        elongation_angle_deg: f64,
     },
 }
 
 impl Source {
+    /// The unit vector `[cos, sin]` of the elongation direction on the
+    /// detector (`[1, 0]` for a NGS).
+    pub fn elongation_direction(&self) -> [f64; 2] {
+        match *self {
+            Source::Ngs => [1.0, 0.0],
+            Source::Rayleigh {
+                elongation_angle_deg,
+                ..
+            }
+            | Source::Sodium {
+                elongation_angle_deg,
+                ..
+            } => {
+                let a = elongation_angle_deg.to_radians();
+                [a.cos(), a.sin()]
+            }
+        }
+    }
+
+    /// The same source elongated along `angle_deg` (a NGS is unchanged).
+    pub fn with_elongation_angle(mut self, angle_deg: f64) -> Self {
+        match &mut self {
+            Source::Ngs => {}
+            Source::Rayleigh {
+                elongation_angle_deg,
+                ..
+            }
+            | Source::Sodium {
+                elongation_angle_deg,
+                ..
+            } => *elongation_angle_deg = angle_deg,
+        }
+        self
+    }
+
     /// The paper's Rayleigh case for one range-gate depth.
     pub fn rayleigh(gate_depth_m: f64) -> Self {
         Source::Rayleigh {
@@ -143,6 +253,7 @@ impl Source {
             gate_depth_m,
             launch_offset_m: 1.8,
             spot_fwhm_arcsec: 0.28,
+            elongation_angle_deg: 0.0,
         }
     }
 
@@ -155,6 +266,7 @@ impl Source {
             half_widths_m: [3.5e3, 2.0e3],
             launch_offset_m: 21.0,
             spot_fwhm_arcsec: 0.28,
+            elongation_angle_deg: 0.0,
         }
     }
 }
@@ -226,6 +338,14 @@ impl SimulationParams {
         self.telescope_diameter_m / self.subapertures_across as f64
     }
 
+    /// Airy diameter (to the first dark ring) of the sub-aperture's
+    /// diffraction at the WFS wavelength, arcsec.
+    pub fn diffraction_airy_diameter_arcsec(&self) -> f64 {
+        super::optics::AIRY_DIAMETER_LAMBDA_OVER_D * self.wavelength_m
+            / self.subaperture_diameter_m()
+            * super::turbulence::ARCSEC_PER_RAD
+    }
+
     /// Fried parameter at the WFS wavelength (r0 scales as lambda^(6/5)).
     pub fn r0_at_wavelength(&self, wavelength_m: f64) -> f64 {
         self.r0_m * (wavelength_m / self.r0_wavelength_m).powf(1.2)
@@ -240,6 +360,13 @@ impl SimulationParams {
                 Err(SimError::Invalid(format!(
                     "{name} must be positive and finite, got {v}"
                 )))
+            }
+        }
+        fn finite(name: &str, v: f64) -> Result<(), SimError> {
+            if v.is_finite() {
+                Ok(())
+            } else {
+                Err(SimError::Invalid(format!("{name} must be finite, got {v}")))
             }
         }
         fn nonneg(name: &str, v: f64) -> Result<(), SimError> {
@@ -291,6 +418,7 @@ impl SimulationParams {
                 gate_depth_m,
                 launch_offset_m,
                 spot_fwhm_arcsec,
+                elongation_angle_deg,
             } => {
                 pos("rayleigh altitude_m", *altitude_m)?;
                 nonneg("rayleigh gate_depth_m", *gate_depth_m)?;
@@ -301,6 +429,7 @@ impl SimulationParams {
                 }
                 nonneg("rayleigh launch_offset_m", *launch_offset_m)?;
                 nonneg("rayleigh spot_fwhm_arcsec", *spot_fwhm_arcsec)?;
+                finite("rayleigh elongation_angle_deg", *elongation_angle_deg)?;
             }
             Source::Sodium {
                 lower_peak_altitude_m,
@@ -309,6 +438,7 @@ impl SimulationParams {
                 half_widths_m,
                 launch_offset_m,
                 spot_fwhm_arcsec,
+                elongation_angle_deg,
             } => {
                 pos("sodium lower_peak_altitude_m", *lower_peak_altitude_m)?;
                 nonneg("sodium separation_m", *separation_m)?;
@@ -325,7 +455,27 @@ impl SimulationParams {
                 }
                 nonneg("sodium launch_offset_m", *launch_offset_m)?;
                 nonneg("sodium spot_fwhm_arcsec", *spot_fwhm_arcsec)?;
+                finite("sodium elongation_angle_deg", *elongation_angle_deg)?;
             }
+        }
+        if let Some(pupil) = &self.pupil {
+            finite("pupil centre_m x", pupil.centre_m[0])?;
+            finite("pupil centre_m y", pupil.centre_m[1])?;
+            nonneg("pupil obscuration_m", pupil.obscuration_m)?;
+            if pupil.obscuration_m >= self.telescope_diameter_m {
+                return Err(SimError::Invalid(
+                    "pupil obscuration_m must be below telescope_diameter_m".into(),
+                ));
+            }
+        }
+        if self.spot_model == SpotModel::WfsWavelengthBlurred
+            && self.airy_diameter_arcsec < self.diffraction_airy_diameter_arcsec() * (1.0 - 1e-9)
+        {
+            return Err(SimError::Invalid(format!(
+                "spot model wfs-wavelength-blurred: the stated Airy diameter {}\" is below the diffraction limit {:.3}\" at the WFS wavelength",
+                self.airy_diameter_arcsec,
+                self.diffraction_airy_diameter_arcsec()
+            )));
         }
         let s = &self.sampling;
         if let Some(q) = s.oversampling {

@@ -332,7 +332,7 @@ fn von_karman_tilt_variance_matches_theory() {
             let s = sim.pupil_phase(&mut ws, i, 99, [0.0, 0.0]);
             vp += s[0] * s[0] + s[1] * s[1];
             if i < 150 {
-                let img = sim.spot_image(&mut ws);
+                let (img, _) = sim.spot_image(&mut ws);
                 let c = cog(&img, 16);
                 vc += c[0] * c[0] + c[1] * c[1];
             }
@@ -454,4 +454,126 @@ fn sodium_spot_is_elongated_along_x() {
             assert!((el.geometry().elongation_rms_arcsec / expect - 1.0).abs() < 0.03);
         }
     }
+}
+
+#[test]
+fn rotated_elongation_is_the_x_elongation_turned() {
+    // A sodium spot elongated at 90 degrees is the x-elongated spot with x
+    // and y swapped (the rotated 2-D transfer against the separable one).
+    let mut p = no_turbulence(SimulationParams::sodium(8e3));
+    let a = Simulator::new(p.clone()).unwrap().subaperture_frame(0, 1);
+    p.source = p.source.with_elongation_angle(90.0);
+    let b = Simulator::new(p).unwrap().subaperture_frame(0, 1);
+    let n = a.size;
+    let mut worst: f64 = 0.0;
+    for y in 0..n {
+        for x in 0..n {
+            worst = worst.max((a.noiseless[y * n + x] - b.noiseless[x * n + y]).abs());
+        }
+    }
+    let peak = a.noiseless.iter().copied().fold(0.0, f64::max);
+    assert!(worst < 0.01 * peak, "{worst} vs peak {peak}");
+    let [ma, mb] = [moments(&a.noiseless, n), moments(&b.noiseless, n)];
+    assert!(ma[0] > 2.0 * ma[1] && mb[1] > 2.0 * mb[0]);
+}
+
+#[test]
+fn a_truncated_spot_reports_the_light_it_loses() {
+    // The paper's sodium spot at 0.22"/pixel (a 3.5" field) does not fit.
+    let small = Simulator::new(SimulationParams {
+        pixel_scale_arcsec: 0.22,
+        ..no_turbulence(SimulationParams::sodium(14e3))
+    })
+    .unwrap()
+    .subaperture_frame(0, 1);
+    assert!(small.field_fraction < 0.6, "{}", small.field_fraction);
+    let fits = Simulator::new(no_turbulence(SimulationParams::sodium(14e3)))
+        .unwrap()
+        .subaperture_frame(0, 1);
+    assert!(fits.field_fraction > 0.98, "{}", fits.field_fraction);
+    let ngs = Simulator::new(SimulationParams::canary())
+        .unwrap()
+        .subaperture_frame(0, 1);
+    assert!(ngs.field_fraction > 0.95, "{}", ngs.field_fraction);
+}
+
+#[test]
+fn spot_models_and_partly_lit_pupils() {
+    let sim = |model| {
+        Simulator::new(SimulationParams {
+            spot_model: model,
+            ..SimulationParams::canary()
+        })
+        .unwrap()
+    };
+    let g = sim(SpotModel::WfsWavelength).geometry().clone();
+    assert!((g.effective_wavelength_m - 640e-9).abs() < 1e-15);
+    assert!((g.diffraction_airy_arcsec - 0.5367).abs() < 1e-3);
+    assert_eq!(g.optics_blur_fwhm_arcsec, 0.0);
+    let g = sim(SpotModel::WfsWavelengthBlurred).geometry().clone();
+    // FWHM 0.2953" (0.7" Airy) from 0.2264" (0.537" Airy): a 0.19" blur.
+    assert!(
+        (g.optics_blur_fwhm_arcsec - 0.1896).abs() < 2e-3,
+        "{}",
+        g.optics_blur_fwhm_arcsec
+    );
+    assert!(Simulator::new(SimulationParams {
+        spot_model: SpotModel::WfsWavelengthBlurred,
+        airy_diameter_arcsec: 0.3,
+        ..SimulationParams::canary()
+    })
+    .is_err());
+    // A corner sub-aperture half outside a 4.2 m pupil: a wider spot.
+    let cut = Simulator::new(SimulationParams {
+        pupil: Some(SubaperturePupil {
+            centre_m: [1.8, 1.2],
+            obscuration_m: 0.0,
+        }),
+        ..no_turbulence(SimulationParams::canary())
+    })
+    .unwrap();
+    let full = Simulator::new(no_turbulence(SimulationParams::canary())).unwrap();
+    let (a, b) = (cut.subaperture_frame(0, 1), full.subaperture_frame(0, 1));
+    let (ma, mb) = (moments(&a.noiseless, 16), moments(&b.noiseless, 16));
+    assert!(ma[0] > mb[0] * 1.2, "{ma:?} {mb:?}");
+    assert!(Simulator::new(SimulationParams {
+        pupil: Some(SubaperturePupil {
+            centre_m: [5.0, 5.0],
+            obscuration_m: 0.0,
+        }),
+        ..SimulationParams::canary()
+    })
+    .is_err());
+}
+
+#[test]
+fn camera_frames_place_every_window_and_are_reproducible() {
+    use super::camera::{CameraSimulator, CameraWindow};
+    let windows = (0..4)
+        .map(|k| CameraWindow {
+            x: (k % 2) * 16,
+            y: (k / 2) * 16,
+            params: SimulationParams::canary(),
+        })
+        .collect();
+    let cam = CameraSimulator::new(40, 32, windows).unwrap();
+    let a = cam.frames(3, 0, 2);
+    assert_eq!(a, vec![cam.frame(3, 0), cam.frame(3, 1)]);
+    assert_eq!(a[0].raw.len(), 40 * 32);
+    assert_eq!(a[0].true_slopes.len(), 4);
+    assert_ne!(a[0].true_slopes[0], a[0].true_slopes[1]);
+    // Outside the windows: background 50 and read noise only.
+    let outside: Vec<f64> = (0..32).map(|y| a[0].raw[y * 40 + 35] as f64).collect();
+    let mean = outside.iter().sum::<f64>() / 32.0;
+    assert!((mean - 50.0).abs() < 2.0, "{mean}");
+    assert!(CameraSimulator::new(
+        20,
+        20,
+        vec![CameraWindow {
+            x: 10,
+            y: 0,
+            params: SimulationParams::canary()
+        }]
+    )
+    .is_err());
 }
