@@ -7,7 +7,7 @@
 use std::fmt::Write as _;
 
 use super::{axis_words, best_row, FigureResult, Row, CLIPPED_ALL};
-use crate::evaluation::stats::{indistinguishable_from_best, pooled};
+use crate::evaluation::stats::{indistinguishable_from_best, pooled, zero_crossing};
 use crate::evaluation::{Axis, Estimate, Method, Score};
 
 fn pm(e: Estimate) -> String {
@@ -153,6 +153,9 @@ pub fn summary(result: &FigureResult) -> String {
     if fig.cases.iter().any(|c| c.seed_offset > 0) {
         s.push_str(&seeds_section(result));
     }
+    if fig.methods.contains(&Method::THRESHOLD) && fig.methods.contains(&Method::SUBTRACT_NEXT) {
+        s.push_str(&crossover_section(result));
+    }
     let invalid: usize = result.rows.iter().map(|r| r.score.invalid).sum();
     let saturated: usize = result
         .rows
@@ -242,6 +245,45 @@ fn seeds_section(result: &FigureResult) -> String {
             range(&indistinguishable_from_best(&refs, axis, 2.0)),
             diff
         );
+    }
+    s
+}
+
+/// Where, along the figure's parameter, threshold overtakes subtract-next:
+/// at fixed N (10, 20, 32, 50) and each at its best N, from the paired
+/// differences of each case, interpolated between the bracketing cases
+/// ([`zero_crossing`]).
+fn crossover_section(result: &FigureResult) -> String {
+    let fig = &result.figure;
+    let axis = fig.axis;
+    if fig.cases.len() < 3 {
+        return String::new();
+    }
+    let diff_at = |ci: usize, n: Option<usize>| -> Option<Estimate> {
+        let pick = |m: Method| -> Option<&Score> {
+            let c = curve(result, ci, m);
+            match n {
+                Some(n) => c.into_iter().find(|r| r.pixels == n && !r.all_pixels),
+                None => best_of(&c, axis),
+            }
+        };
+        Some(pick(Method::THRESHOLD)?.paired_difference(pick(Method::SUBTRACT_NEXT)?, axis))
+    };
+    let mut s = format!(
+        "\nWhere threshold overtakes subtract-next along `{}` (R(threshold) - R(subtract-next) changes sign; linear interpolation between the bracketing cases, standard error by the delta method):\n\n| N | crossover |\n|---|---|\n",
+        fig.parameter
+    );
+    for n in [Some(10), Some(20), Some(32), Some(50), None] {
+        let points: Vec<(f64, Estimate)> = (0..fig.cases.len())
+            .filter_map(|ci| diff_at(ci, n).map(|d| (fig.cases[ci].value, d)))
+            .filter(|(_, d)| d.value.is_finite() && d.se.is_finite())
+            .collect();
+        let label = n.map_or("each at its best N".to_string(), |n| n.to_string());
+        let text = match zero_crossing(&points) {
+            Some(c) => format!("{:.2} ± {:.2}", c.value, c.se),
+            None => "none in the range computed".to_string(),
+        };
+        let _ = writeln!(s, "| {label} | {text} |");
     }
     s
 }
