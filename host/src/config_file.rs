@@ -792,23 +792,31 @@ impl Loader {
         self.error(field, ConfigFileErrorKind::Shape, message)
     }
 
-    /// A full-frame map: shape (height, width), or (1, height, width).
+    /// A full-frame map: shape (height, width); with `frame_axis`, also
+    /// (1, height, width) (a background averaged over a cube, axis kept).
     fn camera_map<'a>(
         &self,
         field: &str,
         array: &'a ArrayValues,
         camera: &Camera,
+        frame_axis: bool,
     ) -> Result<&'a [f64]> {
         let (h, w) = (camera.height as usize, camera.width as usize);
         let ok = match array.shape[..] {
-            [rows, cols] | [1, rows, cols] => rows == h && cols == w,
+            [rows, cols] => rows == h && cols == w,
+            [1, rows, cols] => frame_axis && rows == h && cols == w,
             _ => false,
         };
         if !ok {
+            let also = if frame_axis {
+                format!(" or (1, {h}, {w})")
+            } else {
+                String::new()
+            };
             return Err(self.shape_error(
                 field,
                 array,
-                &format!("({h}, {w}), the camera's (height, width)"),
+                &format!("({h}, {w}){also}, the camera's (height, width)"),
             ));
         }
         Ok(&array.data)
@@ -1033,7 +1041,7 @@ impl Loader {
             None => None,
             Some(BackgroundValues::Map(array)) => {
                 let field = sources.background;
-                let map = self.camera_map(field, array, &camera)?;
+                let map = self.camera_map(field, array, &camera, true)?;
                 let mut out = Vec::with_capacity(map.len());
                 for (i, &v) in map.iter().enumerate() {
                     out.push(background_fixed(v).ok_or_else(|| {
@@ -1066,8 +1074,9 @@ impl Loader {
         };
         config.gain = self.gain(&values, &camera, &mut sources)?;
         if let Some(v) = values.threshold_counts {
+            // The range applies to the value as written, not as rounded.
             let r = (v * 16.0).round();
-            if !(r.is_finite() && r.abs() <= MAX_THRESHOLD_ABS as f64) {
+            if !(v.is_finite() && v.abs() <= MAX_THRESHOLD_ABS as f64 / 16.0) {
                 return Err(self.value_error(
                     "calibration.threshold_counts",
                     format!(
@@ -1097,7 +1106,7 @@ impl Loader {
                 let mut out = [0i32; 2];
                 for (axis, (&v, o)) in pair.iter().zip(&mut out).enumerate() {
                     let r = (v * 65536.0).round();
-                    if !(r.is_finite() && r.abs() <= max) {
+                    if !(v.is_finite() && v.abs() <= max / 65536.0) {
                         return Err(self.value_error(
                             field,
                             array.named(format!(
@@ -1115,7 +1124,8 @@ impl Loader {
         }
         if let Some(v) = values.min_flux_counts {
             let r = (v * 16.0).round();
-            if !(r.is_finite() && (0.0..=(1u64 << 62) as f64).contains(&r)) {
+            // -0.01 is negative even though it rounds to 0.
+            if !(v.is_finite() && v >= 0.0 && r <= (1u64 << 62) as f64) {
                 return Err(self.value_error(
                     "centroid.min_flux_counts",
                     format!("{v} counts; the minimum flux must be finite and >= 0"),
@@ -1146,6 +1156,14 @@ impl Loader {
                 return Err(self.value_error(
                     "subapertures.grid.skip",
                     format!("[{c}, {r}] is listed twice"),
+                ));
+            }
+        }
+        for (key, pitch) in [("pitch_x", g.pitch_x), ("pitch_y", g.pitch_y)] {
+            if pitch == Some(0) {
+                return Err(self.value_error(
+                    &format!("subapertures.grid.{key}"),
+                    "0 pixels would put every window of the grid in one place; the pitch must be at least 1",
                 ));
             }
         }
@@ -1219,11 +1237,13 @@ impl Loader {
         };
         sources.gain = field;
         let flat = match &values.flat {
-            Some(array) => Some(self.camera_map("calibration.flat", array, camera)?),
+            Some(array) => Some(self.camera_map("calibration.flat", array, camera, false)?),
             None => None,
         };
         let weight = match &values.pixel_weight {
-            Some(array) => Some(self.camera_map("calibration.pixel_weight", array, camera)?),
+            Some(array) => {
+                Some(self.camera_map("calibration.pixel_weight", array, camera, false)?)
+            }
             None => None,
         };
         let n = camera.pixel_count();
@@ -1233,7 +1253,8 @@ impl Loader {
             let w = weight.map_or(1.0, |m| m[i]);
             let g = f * w;
             let r = (g * 4096.0).round();
-            if !(r.is_finite() && (0.0..=65535.0).contains(&r)) {
+            // The range applies to the gain as given: -0.0001 is negative.
+            if !(g.is_finite() && (0.0..=65535.0 / 4096.0).contains(&g)) {
                 let (row, col) = (i / camera.width as usize, i % camera.width as usize);
                 let parts = match (&flat, &weight) {
                     (Some(_), Some(_)) => format!(" (flat {f} x weight {w})"),
@@ -1347,8 +1368,9 @@ impl Loader {
 /// Counts to 1/16 count, half away from zero; `None` if not finite or beyond
 /// the engine's range.
 fn background_fixed(counts: f64) -> Option<i32> {
-    let r = (counts * 16.0).round();
-    (r.is_finite() && r.abs() <= MAX_BACKGROUND_ABS as f64).then_some(r as i32)
+    // The range applies to the value as given: 65536.03 is beyond 65536.
+    let in_range = counts.is_finite() && counts.abs() <= MAX_BACKGROUND_ABS as f64 / 16.0;
+    in_range.then(|| (counts * 16.0).round() as i32)
 }
 
 #[cfg(test)]
@@ -1392,6 +1414,83 @@ height = 16
             "{err}"
         );
         err
+    }
+
+    /// Issue 10, fault 6: the guide's ranges apply to the values as
+    /// written (before rounding to fixed point), a negative flat or minimum
+    /// flux is an error however small, a grid pitch of 0 is refused, and
+    /// only the background may carry a leading axis of length 1.
+    #[test]
+    fn ranges_apply_to_the_values_as_written() {
+        let field_of = |text: String| invalid(&text).field.unwrap_or_default();
+        assert_eq!(
+            field_of(format!(
+                "{BASE}[calibration]\nbackground_counts = 65536.03\n"
+            )),
+            "calibration.background_counts"
+        );
+        parse(&format!(
+            "{BASE}[calibration]\nbackground_counts = -65536\n"
+        ))
+        .unwrap();
+        assert_eq!(
+            field_of(format!(
+                "{BASE}[calibration]\nthreshold_counts = 2097152.01\n"
+            )),
+            "calibration.threshold_counts"
+        );
+        assert_eq!(
+            field_of(format!("{BASE}[centroid]\nmin_flux_counts = -0.0001\n")),
+            "centroid.min_flux_counts"
+        );
+        for pitch in ["pitch_x", "pitch_y"] {
+            let text = BASE.replace("height = 16\n", &format!("height = 16\n{pitch} = 0\n"));
+            assert_eq!(field_of(text), format!("subapertures.grid.{pitch}"));
+        }
+        let dir = temp_dir("ranges");
+        let n = 64 * 48;
+        let mut flat = vec![1.0f64; n];
+        flat[70] = -0.0001;
+        write_array(dir.join("flat.npy"), &[48, 64], &flat).unwrap();
+        flat[70] = 65535.2 / 4096.0; // rounds to 65535, but is above it
+        write_array(dir.join("high.npy"), &[48, 64], &flat).unwrap();
+        for name in ["flat.npy", "high.npy"] {
+            let err =
+                parse_in(&dir, &format!("{BASE}[calibration]\nflat = \"{name}\"\n")).unwrap_err();
+            assert_eq!(err.field.as_deref(), Some("calibration.flat"), "{err}");
+            assert!(err.to_string().contains("row 1, column 6"), "{err}");
+        }
+        let mut refs = vec![0.0f64; 24];
+        refs[5] = 64.000001;
+        write_array(dir.join("refs.npy"), &[12, 2], &refs).unwrap();
+        let err = parse_in(
+            &dir,
+            &format!("{BASE}[centroid]\nreference_slopes = \"refs.npy\"\n"),
+        )
+        .unwrap_err();
+        assert_eq!(
+            err.field.as_deref(),
+            Some("centroid.reference_slopes"),
+            "{err}"
+        );
+        // (1, H, W): a background, yes; a flat or a pixel weight, no.
+        write_array(dir.join("cube.npy"), &[1, 48, 64], &vec![1.0f64; n]).unwrap();
+        parse_in(
+            &dir,
+            &format!("{BASE}[calibration]\nbackground = \"cube.npy\"\n"),
+        )
+        .unwrap();
+        for key in ["flat", "pixel_weight"] {
+            let err = parse_in(
+                &dir,
+                &format!("{BASE}[calibration]\n{key} = \"cube.npy\"\n"),
+            )
+            .unwrap_err();
+            assert!(
+                err.to_string().contains("(1, 48, 64); expected (48, 64)"),
+                "{err}"
+            );
+        }
     }
 
     #[test]

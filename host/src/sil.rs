@@ -196,7 +196,9 @@ pub fn stream_and_verify(
 }
 
 /// Checks outcomes (in any order) against `frames` numbered from
-/// `first_frame`, feeding the reference in frame order.
+/// `first_frame`, feeding the reference in frame order. A frame without an
+/// outcome is a failure ([`Verifier::missing`]); outcomes of other frames
+/// are ignored.
 pub fn verify_outcomes(
     verifier: &mut Verifier,
     frames: &[Vec<u16>],
@@ -211,8 +213,11 @@ pub fn verify_outcomes(
         }
     }
     for (pixels, outcome) in frames.iter().zip(by_frame) {
-        if let Some(o) = outcome {
-            verifier.check(pixels, o);
+        match outcome {
+            Some(o) => {
+                verifier.check(pixels, o);
+            }
+            None => verifier.missing(),
         }
     }
 }

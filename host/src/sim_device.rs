@@ -697,7 +697,10 @@ pub struct QemuOptions {
     pub qemu: Option<PathBuf>,
 }
 
-/// The firmware in `qemu-system-arm`. Stops (kills QEMU) when dropped.
+/// The firmware in `qemu-system-arm`. Stops (kills QEMU) when dropped, and
+/// QEMU dies with this process even if it is killed (`PR_SET_PDEATHSIG`;
+/// strictly, with the thread that launched it: launch from a thread that
+/// lives as long as the device).
 pub struct QemuDevice {
     child: Child,
     port: String,
@@ -780,6 +783,23 @@ impl QemuDevice {
         // Its own process group: Ctrl-C in a terminal reaches this process,
         // which then stops QEMU, rather than QEMU directly.
         std::os::unix::process::CommandExt::process_group(&mut command, 0);
+        // And QEMU dies with this process, however it ends (SIGKILL too):
+        // the kernel sends it SIGKILL when the thread that started it exits.
+        let parent = std::process::id() as libc::pid_t;
+        // SAFETY: between fork and exec the closure calls only
+        // async-signal-safe functions (prctl, getppid, _exit).
+        unsafe {
+            std::os::unix::process::CommandExt::pre_exec(&mut command, move || {
+                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                    return Err(io::Error::last_os_error());
+                }
+                // The parent may have died before the prctl took effect.
+                if libc::getppid() != parent {
+                    libc::_exit(1);
+                }
+                Ok(())
+            });
+        }
         let mut child = command.spawn().with_context(|| {
             format!(
                 "cannot start {} (install it: apt-get install qemu-system-arm)",
@@ -887,6 +907,11 @@ impl QemuDevice {
 
     pub fn elf(&self) -> &Path {
         &self.elf
+    }
+
+    /// QEMU's process id.
+    pub fn pid(&self) -> u32 {
+        self.child.id()
     }
 
     /// QEMU's exit status, if it has exited.

@@ -16,7 +16,7 @@ use brightpix_firmware::camera::{DataWidth, DcmiSource};
 use brightpix_firmware::device::{Device, LinkError};
 use brightpix_firmware::engine::{Engine, SubapertureResult};
 use brightpix_protocol::wire::{
-    decode, encode, Ack, DeviceError, DeviceMessage, FrameFault, FrameReader, Hello, HostMessage,
+    decode, encode, Ack, DeviceError, DeviceMessage, FrameFault, FrameReader, HostMessage,
     PixelSourceKind, Received, SlopeEntry, Status, UploadPlan, MAX_CHUNK_BYTES, MAX_FRAME_LEN,
 };
 use brightpix_protocol::{
@@ -176,7 +176,7 @@ fn capture_session(
     let source = DcmiSource::new(sim.clone(), DataWidth::Bits12, &mut words, &mut pixels);
     let mut storage = storage(64, CAMERA.pixel_count());
     let mut device = Device::new(link.clone(), source, storage.buffers(), "sim-dcmi");
-    link.send(&HostMessage::Hello(Hello::CURRENT));
+    link.send(&HostMessage::hello(1));
     let mut plan = UploadPlan::new(config, 1, MAX_CHUNK_BYTES);
     let mut scratch = vec![0u8; MAX_CHUNK_BYTES];
     while let Some(m) = plan.next(&mut scratch) {

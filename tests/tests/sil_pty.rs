@@ -94,6 +94,23 @@ fn failed_upload_keeps_the_old_configuration() {
     failed_uploads_keep_old_config(&mut || connect(&device), &case_with_maps());
 }
 
+/// `check-config --device in-process` checks against what the device reports.
+#[test]
+fn the_in_process_limits_known_offline_are_the_devices() {
+    let device = InProcessDevice::start_pty().unwrap();
+    let client = connect(&device);
+    assert_eq!(
+        Some(brightpix::link::limits::DeviceLimits::of(client.info())),
+        brightpix::link::limits::DeviceLimits::named("in-process")
+    );
+}
+
+#[test]
+fn a_dead_clients_leftovers_do_not_reach_the_next_session() {
+    let device = InProcessDevice::start_pty().unwrap();
+    dead_client_leaves_nothing_behind(&mut || connect(&device), &edge_cases()[0]);
+}
+
 #[test]
 fn corrupted_pixel_frame_is_counted_and_rejected() {
     let device = InProcessDevice::start_pty().unwrap();
@@ -125,10 +142,11 @@ fn fake_device(schema: u64) -> (String, thread::JoinHandle<()>, TTYPort) {
             let mut replies = Vec::new();
             while let Some(Received::Frame(bytes)) = reader.next_frame() {
                 match decode::<HostMessage>(bytes) {
-                    Ok(HostMessage::Hello(_)) => {
+                    Ok(HostMessage::Hello { session, .. }) => {
                         let reply = DeviceMessage::HelloReply(HelloReply {
                             version: PROTOCOL_VERSION,
                             schema,
+                            session,
                             capabilities: Capabilities {
                                 max_subapertures: 8,
                                 max_camera_pixels: 0,

@@ -99,6 +99,94 @@ fn failed_upload_keeps_the_old_configuration_in_qemu() {
     check_alive(&mut device);
 }
 
+/// Issue 10, fault 1, as found: in QEMU, over UART0 (a client killed
+/// mid-frame, then `stream --count 3 --verify` verified only 2 frames).
+#[test]
+fn a_dead_clients_leftovers_do_not_reach_the_next_session_in_qemu() {
+    let mut device = launch(false);
+    dead_client_leaves_nothing_behind(&mut || connect(&device), &edge_cases()[0]);
+    check_alive(&mut device);
+}
+
+/// `check-config --device qemu` checks against what the firmware reports.
+#[test]
+fn the_qemu_limits_known_offline_are_the_firmwares() {
+    let mut device = launch(false);
+    let client = connect(&device);
+    let reported = brightpix::link::limits::DeviceLimits::of(client.info());
+    assert_eq!(
+        Some(reported),
+        brightpix::link::limits::DeviceLimits::named("qemu")
+    );
+    check_alive(&mut device);
+}
+
+/// Issue 10, fault 4: `simulate-device --qemu` killed with SIGKILL left
+/// `qemu-system-arm` running as an orphan holding the pty. This test runs
+/// itself as the parent (a child process of the test binary that launches
+/// QEMU and waits), kills that parent with SIGKILL, and checks that QEMU is
+/// gone within 3 s.
+#[test]
+fn qemu_dies_with_its_parent() {
+    const ROLE: &str = "BRIGHTPIX_TEST_QEMU_PARENT";
+    if std::env::var_os(ROLE).is_some() {
+        let device = launch(false);
+        println!("qemu-pid {}", device.pid());
+        std::io::Write::flush(&mut std::io::stdout()).unwrap();
+        std::thread::sleep(Duration::from_secs(60));
+        return;
+    }
+    let mut parent = std::process::Command::new(std::env::current_exe().unwrap())
+        .args([
+            "qemu_dies_with_its_parent",
+            "--exact",
+            "--nocapture",
+            "--test-threads=1",
+        ])
+        .env(ROLE, "1")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let stdout = parent.stdout.take().unwrap();
+    let mut pid = None;
+    for line in std::io::BufRead::lines(std::io::BufReader::new(stdout)) {
+        let line = line.unwrap();
+        if let Some(p) = line.strip_prefix("qemu-pid ") {
+            pid = Some(p.trim().parse::<u32>().unwrap());
+            break;
+        }
+    }
+    let pid = pid.expect("the parent reports QEMU's pid");
+    let alive = |pid: u32| {
+        // A zombie (state Z) has exited; only its parent's reaping is due.
+        std::fs::read_to_string(format!("/proc/{pid}/stat"))
+            .map(|s| {
+                !s.rsplit(')')
+                    .next()
+                    .unwrap_or("")
+                    .trim_start()
+                    .starts_with('Z')
+            })
+            .unwrap_or(false)
+    };
+    assert!(alive(pid), "QEMU runs while its parent does");
+    parent.kill().unwrap(); // SIGKILL: no handler, no destructor runs
+    parent.wait().unwrap();
+    let t = std::time::Instant::now();
+    while alive(pid) && t.elapsed() < Duration::from_secs(3) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let orphan = alive(pid);
+    if orphan {
+        // Do not leave it behind for the next test.
+        let _ = std::process::Command::new("kill")
+            .args(["-KILL", &pid.to_string()])
+            .status();
+    }
+    assert!(!orphan, "qemu-system-arm (pid {pid}) outlived its parent");
+}
+
 #[test]
 fn corrupted_pixel_frame_is_counted_and_rejected_in_qemu() {
     let mut device = launch(true);

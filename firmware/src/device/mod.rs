@@ -40,26 +40,29 @@
 mod fmt;
 pub mod source;
 pub mod storage;
+pub mod vet;
+pub mod watchdog;
 
 use core::convert::Infallible;
 
 use brightpix_protocol::wire::{
     decode_body, encode, hello_in_body, unstuff, Ack, Capabilities, ConfigHeader, Crc32Digest,
     DeviceError, DeviceMessage, FrameFault, FrameReader, Hello, HelloReply, HostMessage,
-    MessageKind, PixelSourceKind, Received, SlopeEntry, SlopeList, Status, Table, TablePosition,
-    WireError, CRC32, MAX_BOARD_NAME_LEN, MAX_CHUNK_BYTES, MAX_FRAME_LEN, SLOPES_PER_MESSAGE,
+    MessageKind, PixelSourceKind, Received, ResetReason, SlopeEntry, SlopeList, Status, Table,
+    TablePosition, WireError, CRC32, MAX_BOARD_NAME_LEN, MAX_CHUNK_BYTES, MAX_FRAME_LEN,
+    SLOPES_PER_MESSAGE,
 };
 use brightpix_protocol::wire::{tables, CapacityKind};
-use brightpix_protocol::SubapertureWindow;
-use embassy_futures::select::{select, Either};
+use embassy_futures::select::{select, select3, Either, Either3};
 use embedded_io_async::{Read, Write};
 
-use crate::engine::{Engine, EngineMemory, FrameError, MemorySize, OutputSink, SubapertureResult};
+use crate::engine::{Engine, EngineMemory, FrameError, OutputSink, SubapertureResult};
 use fmt::{log_debug, log_info, log_warn};
 
 pub use embedded_io_async;
 pub use source::{CameraRefused, LinkOnly, PixelRowsStream, PixelRun, PixelSource};
 pub use storage::{ConfigSlot, DeviceBuffers, DeviceStorage, SlotStorage};
+pub use watchdog::{NoWatchdog, Watchdog};
 
 /// Why [`Device::run`] returned. The device keeps its configuration and
 /// counters; call `run` again when the link is back.
@@ -71,19 +74,21 @@ pub enum LinkError<E> {
     Closed,
 }
 
-/// The device: link, pixel source, configurations, engine memory, counters.
-pub struct Device<'d, T, C> {
+/// The device: link, pixel source, configurations, engine memory, counters,
+/// and the watchdog it feeds (none by default).
+pub struct Device<'d, T, C, W = NoWatchdog> {
     rx: FrameReader<&'d mut [u8]>,
     source: C,
     slots: [ConfigSlot<'d>; 2],
     memory: EngineMemory<'d>,
-    core: Core<'d, T>,
+    core: Core<'d, T, W>,
 }
 
 /// Everything but the receive buffer, the pixel source, the slots and the
 /// engine memory (which the loop borrows separately).
-struct Core<'d, T> {
+struct Core<'d, T, W> {
     link: T,
+    watchdog: W,
     tx: &'d mut [u8],
     pixels: &'d mut [u16],
     order: &'d mut [u16],
@@ -92,7 +97,6 @@ struct Core<'d, T> {
     /// Results waiting in `results`.
     queued: usize,
     capabilities: Capabilities<'static>,
-    engine_capacity: MemorySize,
     /// Index of the active slot.
     active: usize,
     /// A swap is pending: build the engine afresh and acknowledge.
@@ -151,7 +155,7 @@ type LinkResult<T, E> = Result<T, LinkError<E>>;
 /// many frames (a board's only view of them without asking over the link).
 const STATUS_LOG_FRAMES: u64 = 1000;
 
-impl<'d, T: Read + Write, C: PixelSource> Device<'d, T, C> {
+impl<'d, T: Read + Write, C: PixelSource> Device<'d, T, C, NoWatchdog> {
     /// A device with no configuration. `board` (at most
     /// [`MAX_BOARD_NAME_LEN`] bytes; longer is cut) is reported in
     /// `HelloReply`.
@@ -193,6 +197,7 @@ impl<'d, T: Read + Write, C: PixelSource> Device<'d, T, C> {
             memory: engine,
             core: Core {
                 link,
+                watchdog: NoWatchdog,
                 tx,
                 pixels,
                 order,
@@ -200,7 +205,6 @@ impl<'d, T: Read + Write, C: PixelSource> Device<'d, T, C> {
                 results,
                 queued: 0,
                 capabilities,
-                engine_capacity,
                 active: 0,
                 applying: None,
                 discard_staging: false,
@@ -213,6 +217,59 @@ impl<'d, T: Read + Write, C: PixelSource> Device<'d, T, C> {
                 counters: Status::default(),
             },
         }
+    }
+
+    /// The device with `watchdog`, fed by its loop (`watchdog` module).
+    pub fn with_watchdog<W: Watchdog>(self, watchdog: W) -> Device<'d, T, C, W> {
+        let Device {
+            rx,
+            source,
+            slots,
+            memory,
+            core,
+        } = self;
+        let mut counters = core.counters;
+        counters.watchdog_ms = watchdog.timeout_ms();
+        Device {
+            rx,
+            source,
+            slots,
+            memory,
+            core: Core {
+                link: core.link,
+                watchdog,
+                tx: core.tx,
+                pixels: core.pixels,
+                order: core.order,
+                scratch: core.scratch,
+                results: core.results,
+                queued: core.queued,
+                capabilities: core.capabilities,
+                active: core.active,
+                applying: core.applying,
+                discard_staging: core.discard_staging,
+                session: core.session,
+                upload: core.upload,
+                frame: core.frame,
+                skipping: core.skipping,
+                capture: core.capture,
+                capture_finished: core.capture_finished,
+                counters,
+            },
+        }
+    }
+}
+
+impl<'d, T: Read + Write, C: PixelSource, W: Watchdog> Device<'d, T, C, W> {
+    /// Why the device last started, from the board's reset controller
+    /// (reported in `Status.reset_reason`).
+    pub fn set_reset_reason(&mut self, reason: ResetReason) {
+        self.core.counters.reset_reason = reason;
+    }
+
+    /// The watchdog (e.g. to feed it while the board waits for a link).
+    pub fn watchdog(&mut self) -> &mut W {
+        &mut self.core.watchdog
     }
 
     /// What the device reports in `HelloReply`.
@@ -303,7 +360,7 @@ impl<'d, T: Read + Write, C: PixelSource> Device<'d, T, C> {
     }
 }
 
-impl<T: Read + Write> Core<'_, T> {
+impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
     fn status(&self) -> Status {
         Status {
             upload_id: self.upload.as_ref().map(|u| u.id),
@@ -321,6 +378,8 @@ impl<T: Read + Write> Core<'_, T> {
         staging: &mut ConfigSlot<'_>,
     ) -> LinkResult<(), T::Error> {
         loop {
+            // Alive: every pass of the loop feeds the watchdog.
+            self.watchdog.feed();
             while let Some(received) = rx.next_frame() {
                 let message = match received {
                     Received::TooLong => {
@@ -341,7 +400,10 @@ impl<T: Read + Write> Core<'_, T> {
                             Ok(message) => Some(message),
                             // A host of another protocol version: its Hello
                             // keeps the frozen prefix; answer it as a Hello.
-                            Err(_) => hello_in_body(body).map(HostMessage::Hello),
+                            Err(_) => hello_in_body(body).map(|protocol| HostMessage::Hello {
+                                protocol,
+                                session: 0,
+                            }),
                         },
                     },
                 };
@@ -355,17 +417,24 @@ impl<T: Read + Write> Core<'_, T> {
                     return Ok(());
                 }
             }
-            self.link.flush().await.map_err(LinkError::Io)?;
-            match select(self.link.read(rx.space()), source.next()).await {
-                Either::First(Ok(0)) => return Err(LinkError::Closed),
-                Either::First(Ok(n)) => rx.advance(n),
-                Either::First(Err(e)) => return Err(LinkError::Io(e)),
-                Either::Second(run) => {
+            self.flush_link().await?;
+            let waited = select3(
+                self.link.read(rx.space()),
+                source.next(),
+                self.watchdog.due(),
+            )
+            .await;
+            match waited {
+                Either3::First(Ok(0)) => return Err(LinkError::Closed),
+                Either3::First(Ok(n)) => rx.advance(n),
+                Either3::First(Err(e)) => return Err(LinkError::Io(e)),
+                Either3::Second(run) => {
                     if let Some(engine) = engine {
                         self.feed(engine, run.frame, run.first_pixel, run.pixels)
                             .await?;
                     }
                 }
+                Either3::Third(()) => {} // fed at the top of the loop
             }
             if core::mem::take(&mut self.capture_finished) {
                 source.stop();
@@ -384,15 +453,19 @@ impl<T: Read + Write> Core<'_, T> {
         engine: &mut Option<Engine<'_, '_>>,
         staging: &mut ConfigSlot<'_>,
     ) -> LinkResult<Next, T::Error> {
-        if let HostMessage::Hello(hello) = message {
-            self.session = hello.matches_current();
-            if self.session {
-                log_info!("device: session started");
+        if let HostMessage::Hello { protocol, session } = message {
+            if protocol.matches_current() {
+                self.end_session(source, engine);
+                self.session = true;
+                self.counters.session = Some(session);
+                log_info!("device: session {=u32:#x} started", session);
             } else {
+                // Another version's client: answered, and nothing changes
+                // (a session in progress goes on).
                 log_warn!(
                     "device: host speaks protocol {=u16} schema {=u64:#x}, device {=u16} {=u64:#x}: refused",
-                    hello.version,
-                    hello.schema,
+                    protocol.version,
+                    protocol.schema,
                     Hello::CURRENT.version,
                     Hello::CURRENT.schema
                 );
@@ -400,6 +473,7 @@ impl<T: Read + Write> Core<'_, T> {
             let reply = DeviceMessage::HelloReply(HelloReply {
                 version: Hello::CURRENT.version,
                 schema: Hello::CURRENT.schema,
+                session,
                 capabilities: self.capabilities.clone(),
             });
             self.send(&reply).await?;
@@ -410,7 +484,7 @@ impl<T: Read + Write> Core<'_, T> {
             return Ok(Next::Continue);
         }
         let reply = match message {
-            HostMessage::Hello(_) => unreachable_hello(),
+            HostMessage::Hello { .. } => unreachable_hello(),
             HostMessage::ConfigBegin { upload_id, header } => self
                 .begin(upload_id, header, staging)
                 .map(|upload_id| Ack::UploadStarted { upload_id }),
@@ -524,6 +598,35 @@ impl<T: Read + Write> Core<'_, T> {
         Ok(Next::Continue)
     }
 
+    /// A matching `Hello`: whatever the previous client left in progress
+    /// is abandoned (PROTOCOL.md §6). Its frame in progress is counted in
+    /// `frames_dropped` but not reported (its results would reach the new
+    /// client), its upload is discarded, its capture stopped, and the level
+    /// filters start afresh, so the new session's results depend only on
+    /// what it sends. The active configuration and the counters stay.
+    fn end_session<C: PixelSource>(&mut self, source: &mut C, engine: &mut Option<Engine<'_, '_>>) {
+        if self.capture.take().is_some() {
+            source.stop();
+        }
+        self.capture_finished = false;
+        if let Some(engine) = engine {
+            if self.frame.take().is_some() {
+                engine.abort_frame();
+                self.counters.frames_dropped += 1;
+            }
+            engine.reset_level_filters();
+        }
+        self.frame = None;
+        self.skipping = None;
+        self.queued = 0;
+        if let Some(upload) = self.upload.take() {
+            log_debug!(
+                "device: upload {=u32} discarded by a new session",
+                upload.id
+            );
+        }
+    }
+
     // --- upload -------------------------------------------------------------
 
     fn begin(
@@ -535,23 +638,7 @@ impl<T: Read + Write> Core<'_, T> {
         // A new upload always discards the one in progress, even if refused.
         self.upload = None;
         staging.header = None;
-        let capacity = self.capabilities.max_subapertures;
-        if header.windows > capacity {
-            return Err(DeviceError::Capacity {
-                what: CapacityKind::Subapertures,
-                needed: header.windows,
-                available: capacity,
-            });
-        }
-        let pixels = header.camera.pixel_count();
-        let available = self.capabilities.max_camera_pixels;
-        if (header.background || header.gain) && pixels > available as usize {
-            return Err(DeviceError::Capacity {
-                what: CapacityKind::CameraPixels,
-                needed: saturate(pixels),
-                available,
-            });
-        }
+        vet::check_header(&header, &self.capabilities)?;
         self.upload = Some(Upload {
             id: upload_id,
             header,
@@ -620,16 +707,7 @@ impl<T: Read + Write> Core<'_, T> {
             needed: header.windows,
             available: self.capabilities.max_subapertures,
         })?;
-        Engine::check(&config, self.engine_capacity, self.order, self.scratch)
-            .map_err(|e| DeviceError::Config(e.into()))?;
-        let per_row = results_per_row(config.windows, self.scratch);
-        if per_row > self.results.len() {
-            return Err(DeviceError::Capacity {
-                what: CapacityKind::ResultsPerRow,
-                needed: saturate(per_row),
-                available: saturate(self.results.len()),
-            });
-        }
+        vet::check_config(&config, &self.capabilities, self.order, self.scratch)?;
         staging.header = Some(header);
         Ok(())
     }
@@ -862,13 +940,36 @@ impl<T: Read + Write> Core<'_, T> {
     }
 
     async fn send(&mut self, message: &DeviceMessage<'_>) -> LinkResult<(), T::Error> {
-        match encode(message, self.tx) {
-            Ok(frame) => self.link.write_all(frame).await.map_err(LinkError::Io),
+        let Core {
+            link, tx, watchdog, ..
+        } = self;
+        match encode(message, tx) {
+            Ok(frame) => fed(watchdog, link.write_all(frame))
+                .await
+                .map_err(LinkError::Io),
             Err(_) => {
                 // Only with a transmit buffer below MAX_FRAME_LEN.
                 log_warn!("device: a reply did not fit the transmit buffer");
                 Ok(())
             }
+        }
+    }
+
+    async fn flush_link(&mut self) -> LinkResult<(), T::Error> {
+        let Core { link, watchdog, .. } = self;
+        fed(watchdog, link.flush()).await.map_err(LinkError::Io)
+    }
+}
+
+/// Awaits `io`, feeding `watchdog` whenever it is due meanwhile: a host
+/// that reads slowly makes the loop wait, it does not hang it. (The write
+/// is never cancelled, only polled again.)
+async fn fed<F: core::future::Future, W: Watchdog>(watchdog: &mut W, io: F) -> F::Output {
+    let mut io = core::pin::pin!(io);
+    loop {
+        match select(io.as_mut(), watchdog.due()).await {
+            Either::First(done) => return done,
+            Either::Second(()) => watchdog.feed(),
         }
     }
 }
@@ -966,27 +1067,6 @@ fn fill<E>(target: Option<&mut [E]>, bytes: &[u8], read: impl Fn(&[u8]) -> E) ->
         *t = read(b);
     }
     true
-}
-
-/// The most windows that end in one camera row (`windows` valid).
-fn results_per_row(windows: &[SubapertureWindow], scratch: &mut [u16]) -> usize {
-    let n = windows.len().min(scratch.len());
-    let rows = &mut scratch[..n];
-    for (r, w) in rows.iter_mut().zip(windows) {
-        *r = w.last_row();
-    }
-    rows.sort_unstable();
-    let mut most = 0;
-    let mut run = 0;
-    for k in 0..n {
-        run = if k > 0 && rows[k] == rows[k - 1] {
-            run + 1
-        } else {
-            1
-        };
-        most = most.max(run);
-    }
-    most
 }
 
 /// Collects the engine's results into the queue.

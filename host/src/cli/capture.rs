@@ -6,7 +6,7 @@ use anyhow::{bail, Result};
 use clap::Args;
 
 use crate::config_file::ProcessingConfig;
-use crate::io::write_array;
+use crate::io::{check_outputs, write_array};
 use crate::link::{Client, FrameOutcome};
 
 #[derive(Args)]
@@ -33,6 +33,11 @@ pub struct CaptureArgs {
 }
 
 pub fn run(args: CaptureArgs) -> Result<()> {
+    let inputs: Vec<&std::path::Path> = args.config.as_deref().into_iter().collect();
+    check_outputs(&inputs, &[&args.out])?;
+    if args.frames_count == 0 {
+        bail!("--frames-count must be at least 1");
+    }
     let mut client = Client::open(&args.port)?;
     let mut subapertures = None;
     if let Some(path) = &args.config {

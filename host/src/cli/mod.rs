@@ -2,6 +2,7 @@
 
 mod bench;
 mod capture;
+mod check_config;
 mod configure;
 mod demo;
 mod devices;
@@ -36,10 +37,21 @@ enum Command {
     Demo(demo::DemoArgs),
     Devices(devices::DevicesArgs),
     Configure(configure::ConfigureArgs),
+    CheckConfig(check_config::CheckConfigArgs),
     Status(status::StatusArgs),
     Stream(stream::StreamArgs),
     Capture(capture::CaptureArgs),
     SimulateDevice(simulate_device::SimulateDeviceArgs),
+}
+
+/// A count or size argument that must be at least 1 (`--chunk 0` would
+/// feed the engine nothing, for ever).
+pub(crate) fn at_least_one(text: &str) -> Result<usize, String> {
+    match text.parse::<usize>() {
+        Ok(0) => Err("must be at least 1".into()),
+        Ok(n) => Ok(n),
+        Err(e) => Err(e.to_string()),
+    }
 }
 
 /// Runs the command line; errors are printed with their causes.
@@ -53,6 +65,7 @@ pub fn main() -> ExitCode {
         Command::Demo(args) => demo::run(args),
         Command::Devices(args) => devices::run(args),
         Command::Configure(args) => configure::run(args),
+        Command::CheckConfig(args) => check_config::run(args),
         Command::Status(args) => status::run(args),
         Command::Stream(args) => stream::run(args),
         Command::Capture(args) => capture::run(args),

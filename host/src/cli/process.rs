@@ -2,7 +2,7 @@
 
 use crate::config_file::ProcessingConfig;
 use crate::engine_runner::HostEngine;
-use crate::io::{write_array, FrameShape, FrameSource};
+use crate::io::{check_outputs, stage_array, FrameShape, FrameSource, Staged};
 use crate::parallel::ParallelEngine;
 use crate::reference::Reference;
 use anyhow::{Context, Result};
@@ -32,7 +32,7 @@ pub struct ProcessArgs {
     reference: bool,
     /// Feed the engine this many pixels at a time, as a camera link's DMA would (default: whole
     /// frames). Runs on one core.
-    #[arg(long, value_name = "PIXELS", conflicts_with = "reference")]
+    #[arg(long, value_name = "PIXELS", conflicts_with = "reference", value_parser = super::at_least_one)]
     chunk: Option<usize>,
     /// Worker threads for the engine (default: all cores). Results do not depend on it.
     #[arg(long, value_name = "N", conflicts_with_all = ["reference", "chunk"])]
@@ -47,6 +47,12 @@ pub struct ProcessArgs {
 const BATCH_PIXELS: usize = 1 << 23;
 
 pub fn run(args: ProcessArgs) -> Result<()> {
+    // Before any work: no output may replace an input, or another output.
+    let outputs: Vec<&std::path::Path> = [Some(args.out.as_path()), args.valid_out.as_deref()]
+        .into_iter()
+        .flatten()
+        .collect();
+    check_outputs(&[&args.config, &args.frames], &outputs)?;
     let config = ProcessingConfig::load(&args.config)?;
     let view = config.view();
     let mut source = FrameSource::open_for_camera(&args.frames, &view.camera)?;
@@ -117,10 +123,12 @@ pub fn run(args: ProcessArgs) -> Result<()> {
         }
     }
     let elapsed = started.elapsed();
-    write_array(&args.out, &[frames, subapertures, 2], &slopes)?;
+    // Every output whole, or none: stage them all, then move them in place.
+    let mut staged = vec![stage_array(&args.out, &[frames, subapertures, 2], &slopes)?];
     if let Some(path) = &args.valid_out {
-        write_array(path, &[frames, subapertures], &valid)?;
+        staged.push(stage_array(path, &[frames, subapertures], &valid)?);
     }
+    Staged::commit_all(staged)?;
     let invalid = valid.iter().filter(|&&v| v == 0).count();
     let seconds = elapsed.as_secs_f64().max(1e-9);
     let pixels = (frames * view.camera.pixel_count()) as f64;

@@ -1,16 +1,17 @@
 //! `brightpix stream`: send recorded frames to a device whose camera the
 //! host emulates, collect its slopes, optionally verify every one.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
 
 use crate::config_file::ProcessingConfig;
-use crate::io::{write_array, FrameSource};
+use crate::io::{check_outputs, Appender, FrameSource, IoError};
 use crate::link::verify::Verifier;
 use crate::link::{Client, FrameOutcome, PixelSink};
 use crate::sil::verify_outcomes;
+use crate::sim_device::{catch_interrupts, interrupted};
 
 #[derive(Args)]
 #[command(
@@ -35,7 +36,8 @@ pub struct StreamArgs {
     /// Check every result against the reference implementation.
     #[arg(long)]
     verify: bool,
-    /// Write the slopes (.npy, float64, shape (frames, sub-apertures, 2), pixels; NaN where dropped).
+    /// Write the slopes (.npy or FITS, float64, shape (frames, sub-apertures, 2), pixels; NaN where
+    /// dropped), frame by frame as they arrive: after Ctrl-C or a kill the file holds every frame received.
     #[arg(long)]
     out: Option<PathBuf>,
     /// Send pixels through this FIFO instead of the link.
@@ -56,12 +58,21 @@ pub struct StreamArgs {
 const BATCH: usize = 256;
 
 pub fn run(args: StreamArgs) -> Result<()> {
+    if let Some(out) = &args.out {
+        check_outputs(&[&args.config, &args.frames], &[out])?;
+    }
+    if args.count == Some(0) {
+        bail!("--count must be at least 1");
+    }
     let config = ProcessingConfig::load(&args.config)?;
     let view = config.view();
     let mut source = FrameSource::open_for_camera(&args.frames, &view.camera)?;
     let total = args.count.unwrap_or(usize::MAX).min(source.len());
     let subapertures = view.windows.len();
+    let mut verifier = Verifier::new(&view, args.show).context("configuration")?;
+    catch_interrupts();
     let mut client = Client::open(&args.port)?;
+    client.set_interrupt(Some(interrupted));
     if args.no_configure {
         client.assume_configured(&view);
     } else {
@@ -76,14 +87,14 @@ pub fn run(args: StreamArgs) -> Result<()> {
     if let Some(fifo) = &args.pixels_fifo {
         client.set_pixel_sink(PixelSink::Fifo(fifo.clone()));
     }
-    let mut verifier = Verifier::new(&view, args.show).context("configuration")?;
-    let mut slopes = Vec::with_capacity(if args.out.is_some() {
-        total * subapertures * 2
-    } else {
-        0
-    });
+    // Slopes go to the file as they arrive: it holds every frame received
+    // so far at any moment, even if this process is killed.
+    let mut out = match &args.out {
+        Some(path) => Some(SlopesFile::create(path, subapertures)?),
+        None => None,
+    };
+    let mut tally = Tally::default();
     let mut elapsed = std::time::Duration::ZERO;
-    let (mut done, mut dropped) = (0usize, 0usize);
     let mut first = 0;
     let mut failure = None;
     while first < total {
@@ -93,39 +104,31 @@ pub fn run(args: StreamArgs) -> Result<()> {
             source.read_frame_into(first + k, frame)?;
         }
         let mut outcomes = Vec::with_capacity(count);
-        let result = client.stream_frames(first as u32, &batch, |o| outcomes.push(o));
-        outcomes.sort_by_key(FrameOutcome::frame);
-        if args.verify {
-            verify_outcomes(&mut verifier, &batch, first as u32, &outcomes);
+        let mut write_error = None;
+        let result = client.stream_frames(first as u32, &batch, |o| {
+            if let Some(out) = &mut out {
+                if let Err(e) = out.push(&o, subapertures) {
+                    write_error.get_or_insert(e);
+                }
+            }
+            outcomes.push(o);
+        });
+        if let Some(e) = write_error {
+            return Err(e.into());
         }
-        if args.out.is_some() {
-            let mut by_frame = vec![None; count];
-            for o in &outcomes {
-                if let Some(slot) = by_frame.get_mut((o.frame() as usize).wrapping_sub(first)) {
-                    *slot = Some(o);
-                }
-            }
-            for o in by_frame {
-                let entries = match o {
-                    Some(FrameOutcome::Done(s)) => s.by_index(subapertures),
-                    _ => vec![None; subapertures],
-                };
-                for e in entries {
-                    match e {
-                        Some(e) => {
-                            slopes.extend([e.slope_x as f64 / 65536.0, e.slope_y as f64 / 65536.0])
-                        }
-                        None => slopes.extend([f64::NAN, f64::NAN]),
-                    }
-                }
-            }
+        outcomes.sort_by_key(FrameOutcome::frame);
+        for o in &outcomes {
+            tally.count(o);
+        }
+        let sent = match &result {
+            Ok(report) => report.frames_sent,
+            Err(_) => outcomes.len(),
+        };
+        if args.verify {
+            verify_outcomes(&mut verifier, &batch[..sent], first as u32, &outcomes);
         }
         match result {
-            Ok(report) => {
-                elapsed += report.elapsed;
-                done += report.frames_done;
-                dropped += report.frames_dropped;
-            }
+            Ok(report) => elapsed += report.elapsed,
             Err(e) => {
                 failure = Some(e);
                 break;
@@ -133,42 +136,134 @@ pub fn run(args: StreamArgs) -> Result<()> {
         }
         first += count;
     }
-    let streamed = first.min(total);
-    if let Some(out) = &args.out {
-        let frames = slopes.len() / (2 * subapertures.max(1));
-        write_array(out, &[frames, subapertures, 2], &slopes)?;
+    if let Some(out) = out {
+        let written = out.finish()?;
         eprintln!(
-            "brightpix: slopes of {frames} frames written to {}",
-            out.display()
+            "brightpix: {} holds the slopes of {written} frames ({} complete, {} dropped, {} incomplete; NaN where the device sent nothing)",
+            args.out.as_deref().unwrap_or(Path::new("")).display(),
+            tally.done,
+            tally.dropped,
+            tally.incomplete
         );
     }
     println!(
-        "streamed {done} frames ({dropped} dropped) of {} to {} in {:.3} s: {:.0} frames/s, {:.0} us/frame",
+        "streamed {} of {total} frames of {} to {} ({} dropped, {} incomplete) in {:.3} s: {:.0} frames/s, {:.0} us/frame",
+        tally.done,
         args.frames.display(),
         client.port_name(),
+        tally.dropped,
+        tally.incomplete,
         elapsed.as_secs_f64(),
-        done as f64 / elapsed.as_secs_f64().max(1e-9),
-        elapsed.as_secs_f64() * 1e6 / done.max(1) as f64
+        tally.done as f64 / elapsed.as_secs_f64().max(1e-9),
+        elapsed.as_secs_f64() * 1e6 / tally.done.max(1) as f64
     );
     if let Some(e) = failure {
-        bail!("streaming stopped after {streamed} frames: {e}");
+        if args.verify {
+            print_verification(&verifier, total);
+        }
+        bail!(
+            "streaming stopped after {} of {total} frames: {e}",
+            tally.done + tally.dropped
+        );
     }
     if let Ok(status) = client.status() {
         println!("{}", super::demo::format_status(&status));
     }
     if args.verify {
-        println!(
-            "verified {} frames, {} sub-aperture results compared with the reference: {} mismatches, {} frames dropped",
-            verifier.frames_verified, verifier.slopes_compared, verifier.mismatch_count, verifier.frames_dropped
-        );
-        for m in &verifier.mismatches {
-            println!("  mismatch: {m}");
+        print_verification(&verifier, total);
+        if verifier.frames_verified != total as u64 {
+            bail!(
+                "only {} of the {total} frames requested were verified",
+                verifier.frames_verified
+            );
         }
         if !verifier.all_match() {
             bail!("the device's results differ from the reference");
         }
-    } else if dropped > 0 {
-        bail!("{dropped} frames were dropped by the device");
+    } else if tally.dropped + tally.incomplete > 0 {
+        bail!(
+            "{} frames were dropped by the device",
+            tally.dropped + tally.incomplete
+        );
     }
     Ok(())
+}
+
+fn print_verification(verifier: &Verifier, requested: usize) {
+    println!(
+        "verified {} of {requested} frames, {} sub-aperture results compared with the reference: {} mismatches, {} frames dropped, {} missing",
+        verifier.frames_verified,
+        verifier.slopes_compared,
+        verifier.mismatch_count,
+        verifier.frames_dropped,
+        verifier.frames_missing
+    );
+    for m in &verifier.mismatches {
+        println!("  mismatch: {m}");
+    }
+}
+
+/// Frame outcomes by kind.
+#[derive(Default)]
+struct Tally {
+    done: usize,
+    dropped: usize,
+    incomplete: usize,
+}
+
+impl Tally {
+    fn count(&mut self, o: &FrameOutcome) {
+        match o {
+            FrameOutcome::Done(_) => self.done += 1,
+            FrameOutcome::Dropped { .. } => self.dropped += 1,
+            FrameOutcome::Incomplete(_) => self.incomplete += 1,
+        }
+    }
+}
+
+/// `--out`: one row of (sub-apertures, 2) slopes per frame, in frame
+/// order, written as each frame's outcome arrives.
+struct SlopesFile {
+    file: Appender,
+    /// Outcomes that arrived ahead of an earlier frame's.
+    waiting: std::collections::BTreeMap<u32, Vec<f64>>,
+    next: Option<u32>,
+}
+
+impl SlopesFile {
+    fn create(path: &Path, subapertures: usize) -> Result<SlopesFile> {
+        Ok(SlopesFile {
+            file: Appender::create(path, &[subapertures, 2])?,
+            waiting: Default::default(),
+            next: None,
+        })
+    }
+
+    fn push(&mut self, o: &FrameOutcome, subapertures: usize) -> Result<(), IoError> {
+        let mut row = Vec::with_capacity(subapertures * 2);
+        for e in o.slopes().by_index(subapertures) {
+            match e {
+                Some(e) => row.extend([e.slope_x as f64 / 65536.0, e.slope_y as f64 / 65536.0]),
+                None => row.extend([f64::NAN, f64::NAN]),
+            }
+        }
+        let next = *self.next.get_or_insert(o.frame());
+        self.waiting.insert(o.frame(), row);
+        let mut next = next;
+        while let Some(row) = self.waiting.remove(&next) {
+            self.file.append(&row)?;
+            next = next.wrapping_add(1);
+        }
+        self.next = Some(next);
+        Ok(())
+    }
+
+    fn finish(mut self) -> Result<usize, IoError> {
+        // Frames whose predecessors never ended (cannot happen: every frame
+        // sent gets an outcome), in order.
+        for row in std::mem::take(&mut self.waiting).into_values() {
+            self.file.append(&row)?;
+        }
+        self.file.finish()
+    }
 }

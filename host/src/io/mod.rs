@@ -16,6 +16,9 @@
 
 pub mod fits;
 pub mod npy;
+pub mod output;
+
+pub use output::{check_outputs, Appender, Staged};
 
 use std::fmt;
 use std::fs::File;
@@ -233,13 +236,35 @@ impl Element for u16 {
 }
 
 /// Writes `data` (row-major, `shape` slowest axis first) as `.npy` or FITS
-/// by the extension of `path`.
+/// by the extension of `path`: whole or not at all (a temporary sibling,
+/// then a rename; see [`stage_array`] to commit several outputs together).
 pub fn write_array<T: Element>(
     path: impl AsRef<Path>,
     shape: &[usize],
     data: &[T],
 ) -> Result<(), IoError> {
+    stage_array(path, shape, data)?.commit()
+}
+
+/// [`write_array`] into a temporary sibling of `path`, moved into place by
+/// [`Staged::commit`] (and removed if dropped uncommitted).
+pub fn stage_array<T: Element>(
+    path: impl AsRef<Path>,
+    shape: &[usize],
+    data: &[T],
+) -> Result<Staged, IoError> {
     let path = path.as_ref();
+    FileFormat::from_path(path)?;
+    Staged::write(path, |temp| write_in_place(temp, path, shape, data))
+}
+
+/// Writes the file `temp` in the format of `path`'s extension.
+fn write_in_place<T: Element>(
+    temp: &Path,
+    path: &Path,
+    shape: &[usize],
+    data: &[T],
+) -> Result<(), IoError> {
     let format = FileFormat::from_path(path)?;
     let expected: usize = shape.iter().product();
     if expected != data.len() {
@@ -250,8 +275,8 @@ pub fn write_array<T: Element>(
         ));
     }
     match format {
-        FileFormat::Npy => npy::write(path, shape, data),
-        FileFormat::Fits => fits::write(path, shape, data),
+        FileFormat::Npy => npy::write(temp, shape, data),
+        FileFormat::Fits => fits::write(temp, shape, data),
     }
 }
 

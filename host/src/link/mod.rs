@@ -29,11 +29,12 @@
 //!   ([`Interrupted::received`], or delivered to the callback before the
 //!   error).
 
+pub mod limits;
 mod port;
 mod sink;
 pub mod verify;
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::fmt;
 use std::io::{self, ErrorKind};
 use std::time::{Duration, Instant};
@@ -88,13 +89,16 @@ pub struct DeviceInfo {
     pub max_frame_bytes: u32,
     pub pixel_source: PixelSourceKind,
     pub board: String,
+    /// The session id the device echoed.
+    pub session: u32,
 }
 
 impl DeviceInfo {
-    fn new(version: u16, schema: u64, c: &Capabilities<'_>) -> Self {
+    fn new(version: u16, schema: u64, session: u32, c: &Capabilities<'_>) -> Self {
         DeviceInfo {
             version,
             schema,
+            session,
             max_subapertures: c.max_subapertures,
             max_camera_pixels: c.max_camera_pixels,
             max_open_windows: c.max_open_windows,
@@ -170,6 +174,8 @@ pub enum LinkError {
     FrameDropped { frame: u32, fault: FrameFault },
     #[error("{0}")]
     Usage(String),
+    #[error("interrupted (SIGINT or SIGTERM)")]
+    Interrupted,
 }
 
 /// A call that failed part-way, with everything it had received.
@@ -324,9 +330,38 @@ pub struct Client {
     pub notices: Vec<DeviceError>,
     /// Frames from the device that did not decode (damaged on the way).
     pub damaged_frames: u64,
+    /// Frame outcomes discarded because they were not of a frame the
+    /// client was waiting for (an earlier stream's or session's).
+    pub stale_outcomes: u64,
     camera: Option<Camera>,
     subapertures: usize,
     upload_counter: u32,
+    /// This client's session id.
+    session: u32,
+    /// Polled while the client waits or streams: `true` ends the call
+    /// with [`LinkError::Interrupted`] (e.g. after Ctrl-C).
+    interrupt: Option<fn() -> bool>,
+}
+
+/// How long the client waits for `HelloReply` before it sends `Hello` again
+/// (QEMU's pty drops what the device sends before it notices the client,
+/// up to ~1 s after the port opens).
+pub const HELLO_RETRY: Duration = Duration::from_millis(700);
+
+/// A fresh non-zero id from the clock, this process and `salt`.
+fn fresh_id(salt: u32) -> u32 {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    static COUNTER: AtomicU32 = AtomicU32::new(0);
+    let count = COUNTER.fetch_add(1, Ordering::Relaxed);
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| {
+            d.subsec_nanos() ^ (d.as_secs() as u32).rotate_left(16)
+        });
+    let mixed = (nanos ^ std::process::id().rotate_left(8) ^ salt)
+        .wrapping_add(count.wrapping_mul(0x9E37_79B9))
+        .wrapping_mul(0x85EB_CA6B);
+    (mixed ^ (mixed >> 15)) | 1
 }
 
 impl Client {
@@ -377,7 +412,9 @@ impl Client {
                 max_frame_bytes: MAX_FRAME_LEN as u32,
                 pixel_source: PixelSourceKind::Link,
                 board: String::new(),
+                session: 0,
             },
+            session: 0,
             sink: PixelSink::Link,
             fifo: None,
             replies: VecDeque::new(),
@@ -385,14 +422,22 @@ impl Client {
             finished: VecDeque::new(),
             notices: Vec::new(),
             damaged_frames: 0,
+            stale_outcomes: 0,
             camera: None,
             subapertures: 0,
             upload_counter: 0,
+            interrupt: None,
         };
         client.handshake()?;
         Ok(client)
     }
 
+    /// Opens a session (PROTOCOL.md §6): a 0x00 (ends whatever partial
+    /// frame a previous client left in the device's receiver), then `Hello`
+    /// with a fresh session id, resent until the `HelloReply` that echoes
+    /// that id. Everything the device sent before that reply belongs to an
+    /// earlier session and is discarded; so is every later `HelloReply`
+    /// (answers to the resent `Hello`s).
     fn handshake(&mut self) -> Result<(), LinkError> {
         // Old bytes (a previous session's results) are of no interest.
         let draining = Instant::now();
@@ -400,27 +445,34 @@ impl Client {
             && draining.elapsed() < Duration::from_millis(500)
         {}
         self.forget_everything();
+        self.session = fresh_id(0x5E55_1011);
         let started = Instant::now();
-        let mut frame = vec![0u8]; // resynchronise the device's receiver
-        frame.extend_from_slice(self.encode(&HostMessage::Hello(Hello::CURRENT))?);
+        let mut frame = vec![0u8];
+        frame.extend_from_slice(self.encode(&HostMessage::hello(self.session))?);
         loop {
             self.write_raw(&frame, "Hello")?;
             let attempt = Instant::now();
-            while attempt.elapsed() < Duration::from_millis(700) {
+            while attempt.elapsed() < HELLO_RETRY {
                 self.pump(Duration::from_millis(50))?;
                 while let Some(reply) = self.replies.pop_front() {
-                    if let Reply::Hello(info) = reply {
-                        VersionMismatch::check(Hello {
-                            version: info.version,
-                            schema: info.schema,
-                        })
-                        .map_err(LinkError::Version)?;
-                        self.info = info;
-                        // A late answer to an earlier Hello may follow.
-                        self.pump(Duration::from_millis(30))?;
-                        self.forget_everything();
-                        return Ok(());
+                    let Reply::Hello(info) = reply else { continue };
+                    let theirs = Hello {
+                        version: info.version,
+                        schema: info.schema,
+                    };
+                    // Another protocol's reply carries no session we can read.
+                    VersionMismatch::check(theirs).map_err(LinkError::Version)?;
+                    if info.session != self.session {
+                        continue; // an answer to another client's Hello
                     }
+                    self.info = info;
+                    // Results, errors and frame outcomes so far are the
+                    // previous session's.
+                    self.forget_everything();
+                    self.notices.clear();
+                    self.damaged_frames = 0;
+                    self.stale_outcomes = 0;
+                    return Ok(());
                 }
             }
             if started.elapsed() >= self.options.connect_timeout {
@@ -430,6 +482,24 @@ impl Client {
                 });
             }
         }
+    }
+
+    /// Makes waits and streams end with [`LinkError::Interrupted`] once
+    /// `interrupted()` returns true (e.g. `sim_device::interrupted`).
+    pub fn set_interrupt(&mut self, interrupted: Option<fn() -> bool>) {
+        self.interrupt = interrupted;
+    }
+
+    fn check_interrupt(&self) -> Result<(), LinkError> {
+        match self.interrupt {
+            Some(f) if f() => Err(LinkError::Interrupted),
+            _ => Ok(()),
+        }
+    }
+
+    /// This client's session id (sent in `Hello`, echoed by the device).
+    pub fn session(&self) -> u32 {
+        self.session
     }
 
     fn forget_everything(&mut self) {
@@ -524,6 +594,11 @@ impl Client {
                         pool_entries,
                     }),
                 ) if config_id == upload_id => {
+                    // The device dropped any frame in progress: results of
+                    // earlier frames can no longer complete.
+                    self.stale_outcomes += (self.open_frames.len() + self.finished.len()) as u64;
+                    self.open_frames.clear();
+                    self.finished.clear();
                     self.camera = Some(config.camera);
                     self.subapertures = config.windows.len();
                     return Ok(Configured {
@@ -552,12 +627,7 @@ impl Client {
 
     fn fresh_upload_id(&mut self) -> u32 {
         self.upload_counter = self.upload_counter.wrapping_add(1);
-        let nanos = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| {
-                d.subsec_nanos() ^ (d.as_secs() as u32).rotate_left(16)
-            });
-        (nanos ^ self.upload_counter.wrapping_mul(0x9E37_79B9)) | 1
+        fresh_id(self.upload_counter)
     }
 
     /// `ResetLevelFilters`.
@@ -793,7 +863,9 @@ impl Client {
     /// results. Every frame's outcome goes to `on_outcome` as it arrives, in
     /// order; on an error, frames in flight go there as
     /// [`FrameOutcome::Incomplete`] with what had arrived, then the error is
-    /// returned.
+    /// returned. Only outcomes of frames this call sent count: results or
+    /// drops of any other frame (an earlier stream's, a previous client's)
+    /// are discarded and counted in [`Client::stale_outcomes`].
     pub fn stream_frames<F: AsRef<[u16]>>(
         &mut self,
         first_frame: u32,
@@ -803,7 +875,7 @@ impl Client {
         let started = Instant::now();
         let mut report = StreamReport::default();
         let window = self.options.frames_in_flight.max(1);
-        let mut in_flight = 0usize;
+        let mut in_flight: BTreeSet<u32> = BTreeSet::new();
         let mut deliver = |o: FrameOutcome, report: &mut StreamReport| {
             match &o {
                 FrameOutcome::Done(_) => report.frames_done += 1,
@@ -814,24 +886,29 @@ impl Client {
         };
         let result = (|| {
             for (k, pixels) in frames.into_iter().enumerate() {
-                while in_flight >= window {
-                    let o = self.next_outcome()?;
-                    in_flight = in_flight.saturating_sub(1);
+                while in_flight.len() >= window {
+                    let o = self.next_outcome_of(&in_flight)?;
+                    in_flight.remove(&o.frame());
                     deliver(o, &mut report);
                 }
+                self.check_interrupt()?;
                 let frame = first_frame.wrapping_add(k as u32);
+                // Results a previous stream left under this number are stale.
+                if self.open_frames.remove(&frame).is_some() {
+                    self.stale_outcomes += 1;
+                }
+                in_flight.insert(frame);
                 report.pixel_bytes += self.send_frame(frame, pixels.as_ref())?;
                 report.frames_sent += 1;
-                in_flight += 1;
-                while let Some(o) = self.finished.pop_front() {
-                    in_flight = in_flight.saturating_sub(1);
+                while let Some(o) = self.take_outcome_of(&in_flight) {
+                    in_flight.remove(&o.frame());
                     deliver(o, &mut report);
                 }
                 self.check_stream_errors()?;
             }
-            while in_flight > 0 {
-                let o = self.next_outcome()?;
-                in_flight -= 1;
+            while !in_flight.is_empty() {
+                let o = self.next_outcome_of(&in_flight)?;
+                in_flight.remove(&o.frame());
                 deliver(o, &mut report);
             }
             Ok(())
@@ -841,15 +918,45 @@ impl Client {
         match result {
             Ok(()) => Ok(report),
             Err(e) => {
-                while let Some(o) = self.finished.pop_front() {
+                while let Some(o) = self.take_outcome_of(&in_flight) {
+                    in_flight.remove(&o.frame());
                     deliver(o, &mut report);
                 }
                 for s in self.take_incomplete() {
-                    deliver(FrameOutcome::Incomplete(s), &mut report);
+                    if in_flight.remove(&s.frame) {
+                        deliver(FrameOutcome::Incomplete(s), &mut report);
+                    }
+                }
+                for frame in in_flight {
+                    deliver(
+                        FrameOutcome::Incomplete(FrameSlopes {
+                            frame,
+                            ..FrameSlopes::default()
+                        }),
+                        &mut report,
+                    );
                 }
                 Err(e)
             }
         }
+    }
+
+    /// The next ended frame among `frames`, without waiting; outcomes of
+    /// other frames are discarded (stale).
+    fn take_outcome_of(&mut self, frames: &BTreeSet<u32>) -> Option<FrameOutcome> {
+        while let Some(o) = self.finished.pop_front() {
+            if frames.contains(&o.frame()) {
+                return Some(o);
+            }
+            self.stale_outcomes += 1;
+        }
+        None
+    }
+
+    /// Waits for the next frame among `frames` to end.
+    fn next_outcome_of(&mut self, frames: &BTreeSet<u32>) -> Result<FrameOutcome, LinkError> {
+        self.check_stream_errors()?;
+        self.wait("frame results", |c| c.take_outcome_of(frames))
     }
 
     /// `Capture { frames }` on a device with its own camera: records
@@ -992,6 +1099,7 @@ impl Client {
             if let Some(t) = found(self) {
                 return Ok(t);
             }
+            self.check_interrupt()?;
             let left = self.options.timeout.saturating_sub(last_byte.elapsed());
             if left.is_zero() {
                 return Err(LinkError::Timeout {
@@ -1101,6 +1209,7 @@ fn decode_incoming(bytes: &mut [u8]) -> Incoming {
         Ok(DeviceMessage::HelloReply(h)) => Incoming::Reply(Reply::Hello(DeviceInfo::new(
             h.version,
             h.schema,
+            h.session,
             &h.capabilities,
         ))),
         Ok(DeviceMessage::Ack(a)) => Incoming::Reply(Reply::Ack(a)),

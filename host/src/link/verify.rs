@@ -60,6 +60,8 @@ pub struct Verifier {
     pub frames_failed: u64,
     /// Frames the device dropped (not compared).
     pub frames_dropped: u64,
+    /// Frames sent whose outcome never arrived (not compared).
+    pub frames_missing: u64,
     pub slopes_compared: u64,
     keep: usize,
 }
@@ -75,6 +77,7 @@ impl Verifier {
             frames_verified: 0,
             frames_failed: 0,
             frames_dropped: 0,
+            frames_missing: 0,
             slopes_compared: 0,
             keep,
         })
@@ -147,7 +150,19 @@ impl Verifier {
         ok
     }
 
-    /// Every frame compared agreed, and none was dropped.
+    /// A frame that was sent but whose outcome never came: a failure. (A
+    /// verification that checked fewer frames than were sent must not pass.)
+    pub fn missing(&mut self) {
+        self.frames_missing += 1;
+        self.frames_failed += 1;
+    }
+
+    /// Frames checked so far: verified, failed, dropped or missing.
+    pub fn frames_checked(&self) -> u64 {
+        self.frames_verified + self.frames_failed
+    }
+
+    /// Every frame compared agreed, and none was dropped or missing.
     pub fn all_match(&self) -> bool {
         self.frames_failed == 0 && self.mismatch_count == 0
     }

@@ -21,7 +21,7 @@
 //!
 //! // To the device: one frame per message.
 //! let mut out = [0u8; MAX_FRAME_LEN];
-//! let frame = encode(&HostMessage::Hello(Hello::CURRENT), &mut out).unwrap();
+//! let frame = encode(&HostMessage::hello(7), &mut out).unwrap();
 //! # let mut device_bytes = [0u8; 64];
 //! # let n = encode(&DeviceMessage::FrameDone { frame: 1, count: 2 }, &mut device_bytes).unwrap().len();
 //! # let device_bytes = &device_bytes[..n];
@@ -66,7 +66,10 @@ pub use tables::{PixelRowsPlan, UploadPlan};
 
 /// Bumped by hand whenever the meaning of a message changes without its
 /// types changing (the [`SCHEMA_HASH`] catches type changes by itself).
-pub const PROTOCOL_VERSION: u16 = 1;
+/// Version 2: sessions (`Hello.session`, echoed in `HelloReply`; a
+/// matching `Hello` resets the session state), the reset reason and the
+/// watchdog in `Status`. PROTOCOL.md §12 lists every version.
+pub const PROTOCOL_VERSION: u16 = 2;
 
 /// Largest postcard encoding of a message that every frame buffer holds.
 pub const MAX_MESSAGE_LEN: usize = 1024;
@@ -147,8 +150,12 @@ pub const fn fnv1a64(mut state: u64, bytes: &[u8]) -> u64 {
 /// versions can tell each other apart.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
 pub enum HostMessage<'a> {
-    /// Starts a session. Reply: [`DeviceMessage::HelloReply`].
-    Hello(Hello),
+    /// Starts a session (PROTOCOL.md §6): `protocol` is frozen, `session`
+    /// is an id the host chose, echoed in the reply. A `Hello` whose
+    /// `protocol` matches the device's ends the previous session (its frame
+    /// in progress, upload, capture and level filters); one that does not
+    /// match changes nothing. Reply: [`DeviceMessage::HelloReply`].
+    Hello { protocol: Hello, session: u32 },
     /// Starts a configuration upload (discarding any upload in progress).
     /// Reply: `Ack(UploadStarted)` or `Error`.
     ConfigBegin {
@@ -192,11 +199,22 @@ pub enum HostMessage<'a> {
     StopCapture,
 }
 
-/// Protocol identity. Frozen: these two fields, in this order, forever.
+/// Protocol identity: the frozen prefix of `Hello` and `HelloReply`. These
+/// two fields, in this order, forever.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
 pub struct Hello {
     pub version: u16,
     pub schema: u64,
+}
+
+impl HostMessage<'_> {
+    /// `Hello` with this build's protocol and the host's `session` id.
+    pub const fn hello(session: u32) -> HostMessage<'static> {
+        HostMessage::Hello {
+            protocol: Hello::CURRENT,
+            session,
+        }
+    }
 }
 
 impl Hello {
@@ -286,6 +304,9 @@ pub enum DeviceMessage<'a> {
 pub struct HelloReply<'a> {
     pub version: u16,
     pub schema: u64,
+    /// The `session` of the `Hello` this answers (0 when the `Hello` did not
+    /// decode past its frozen prefix).
+    pub session: u32,
     #[serde(borrow)]
     pub capabilities: Capabilities<'a>,
 }
@@ -379,6 +400,31 @@ pub struct Status {
     pub overruns: u32,
     /// Pixels above the camera's bit depth.
     pub pixel_errors: u32,
+    /// The session of the last matching `Hello` (`None`: none since start).
+    pub session: Option<u32>,
+    /// Why the device last started.
+    pub reset_reason: ResetReason,
+    /// The independent watchdog's timeout in ms, if the board runs one.
+    pub watchdog_ms: Option<u32>,
+}
+
+/// Why the device last started, as its board's reset controller says.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub enum ResetReason {
+    /// The board does not tell (QEMU, the in-process device).
+    #[default]
+    Unknown,
+    PowerOn,
+    /// The reset pin (NRST), e.g. a debugger or the reset button.
+    Pin,
+    /// Brown-out: the supply dropped below its threshold.
+    Brownout,
+    /// A software reset (`SYSRESETREQ`), e.g. after a panic or a flash.
+    Software,
+    /// The independent watchdog expired: the device loop stopped running.
+    Watchdog,
+    /// The window watchdog, a lockup or a low-power reset.
+    Other,
 }
 
 /// The results of one [`DeviceMessage::Slopes`].
@@ -405,8 +451,8 @@ pub enum DeviceError {
     Crc,
     /// A link frame longer than `max_frame_bytes`; discarded.
     FrameTooLong,
-    /// No matching `Hello` yet in this session: the device refuses everything
-    /// else (after a `Hello` with another version or schema, too).
+    /// No matching `Hello` since the device started: it refuses everything
+    /// else (a `Hello` with another version or schema opens nothing).
     HelloRequired,
     /// The message is not valid now (e.g. `PixelRows` during `Capture`).
     Unexpected { message: MessageKind },
@@ -712,7 +758,7 @@ pub enum MessageKind {
 impl HostMessage<'_> {
     pub fn kind(&self) -> MessageKind {
         match self {
-            HostMessage::Hello(_) => MessageKind::Hello,
+            HostMessage::Hello { .. } => MessageKind::Hello,
             HostMessage::ConfigBegin { .. } => MessageKind::ConfigBegin,
             HostMessage::ConfigChunk { .. } => MessageKind::ConfigChunk,
             HostMessage::ConfigCommit { .. } => MessageKind::ConfigCommit,
@@ -762,6 +808,20 @@ impl fmt::Display for VersionMismatch {
 impl core::error::Error for VersionMismatch {}
 impl core::error::Error for DeviceError {}
 impl core::error::Error for ConfigFault {}
+
+impl fmt::Display for ResetReason {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            ResetReason::Unknown => "unknown (the board does not tell)",
+            ResetReason::PowerOn => "power-on",
+            ResetReason::Pin => "reset pin",
+            ResetReason::Brownout => "brown-out",
+            ResetReason::Software => "software reset",
+            ResetReason::Watchdog => "watchdog expired",
+            ResetReason::Other => "other (window watchdog, lockup or low-power)",
+        })
+    }
+}
 
 impl fmt::Display for Table {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {

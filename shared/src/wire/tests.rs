@@ -56,7 +56,7 @@ fn header() -> ConfigHeader {
 /// One example of every host message, extreme values where sizes matter.
 fn host_examples(payload: &[u8]) -> Vec<HostMessage<'_>> {
     let all = vec![
-        HostMessage::Hello(Hello::CURRENT),
+        HostMessage::hello(u32::MAX),
         HostMessage::ConfigBegin {
             upload_id: u32::MAX,
             header: header(),
@@ -118,6 +118,7 @@ fn device_examples() -> Vec<DeviceMessage<'static>> {
         DeviceMessage::HelloReply(HelloReply {
             version: PROTOCOL_VERSION,
             schema: SCHEMA_HASH,
+            session: u32::MAX,
             capabilities: Capabilities {
                 max_subapertures: u32::MAX,
                 max_camera_pixels: u32::MAX,
@@ -141,6 +142,9 @@ fn device_examples() -> Vec<DeviceMessage<'static>> {
             decode_errors: u32::MAX,
             overruns: u32::MAX,
             pixel_errors: u32::MAX,
+            session: Some(u32::MAX),
+            reset_reason: ResetReason::Watchdog,
+            watchdog_ms: Some(u32::MAX),
         }),
         DeviceMessage::Slopes {
             frame: u32::MAX,
@@ -350,11 +354,14 @@ fn encoding_is_as_documented() {
         [0x02, 0x08, 0x03, 0xf7, 0x98, 0x02, 0x89, 0x00]
     );
     assert_eq!(
-        enc_host(HostMessage::Hello(Hello {
-            version: 1,
-            schema: 300
-        })),
-        [0x01, 0x08, 0x01, 0xac, 0x02, 0xe2, 0x27, 0x3a, 0xcc, 0x00]
+        enc_host(HostMessage::Hello {
+            protocol: Hello {
+                version: 2,
+                schema: 300
+            },
+            session: 7
+        }),
+        [0x01, 0x09, 0x02, 0xac, 0x02, 0x07, 0xb3, 0x6c, 0x1b, 0x10, 0x00]
     );
     assert_eq!(
         enc_device(DeviceMessage::FrameDone {
@@ -583,7 +590,7 @@ fn schema_hash_is_pinned() {
     );
 }
 
-const PINNED_SCHEMA_HASH: u64 = 0x62aa_7ed2_3a4e_932d;
+const PINNED_SCHEMA_HASH: u64 = 0x4734_f62f_787d_1b6d;
 
 fn hash_of<T: Schema + ?Sized>() -> u64 {
     u64::from_le_bytes(hash_ty_path::<T>(WIRE_CONVENTIONS))

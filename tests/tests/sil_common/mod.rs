@@ -441,9 +441,8 @@ pub fn failed_uploads_keep_old_config(connect: &mut dyn FnMut() -> Client, old: 
         "the old configuration must stay active"
     );
     assert_eq!(
-        status.upload_id,
-        Some(0x0BAD_0001),
-        "the interrupted upload is still pending"
+        status.upload_id, None,
+        "the new session discarded the dead client's upload"
     );
     client.assume_configured(&view);
     let run = stream_and_verify(&mut client, &view, &old.frames[..half], 0, 5);
@@ -500,6 +499,39 @@ pub fn failed_uploads_keep_old_config(connect: &mut dyn FnMut() -> Client, old: 
         verifier.mismatches
     );
     assert_eq!(verifier.frames_verified as usize, old.frames.len());
+}
+
+/// Issue 10, fault 1: a client killed in the middle of a frame (its last
+/// message cut off) must not make the next client's verification pass with
+/// a frame missing. The next client configures and streams three frames:
+/// all three are verified, and nothing of the dead client's counts.
+pub fn dead_client_leaves_nothing_behind(connect: &mut dyn FnMut() -> Client, case: &Case) {
+    let view = case.config.view();
+    let mut client = connect();
+    client.configure(&view).unwrap();
+    // Frame 57 up to the middle of one of its messages, then the client dies.
+    let bytes = brightpix::link::encode_pixel_rows(57, &case.frames[0]);
+    client.send_raw(&bytes[..bytes.len() / 2 + 3]).unwrap();
+    drop(client);
+
+    let mut client = connect();
+    client.configure(&view).unwrap();
+    let run = stream_and_verify(&mut client, &view, &case.frames[1..4], 0, 5);
+    assert!(run.error.is_none(), "{:?}", run.error);
+    assert_eq!(
+        (run.verifier.frames_verified, run.verifier.frames_failed),
+        (3, 0),
+        "every frame requested verified: {:?}",
+        run.verifier.mismatches
+    );
+    assert_eq!(run.report.frames_done, 3);
+    assert_eq!(run.outcomes.len(), 3, "{:?}", run.outcomes);
+    let status = client.status().unwrap();
+    assert_eq!(status.session, Some(client.session()));
+    assert!(
+        status.frames_dropped >= 1,
+        "frame 57 was dropped: {status:?}"
+    );
 }
 
 /// A `PixelRows` frame with a flipped byte is counted (`crc_errors`) and

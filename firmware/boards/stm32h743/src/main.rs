@@ -8,6 +8,8 @@
 //!   circular DMA into a ring in AXI SRAM ([`dcmi`]) and cut into pixel runs
 //!   by `brightpix_firmware::camera::DcmiSource`;
 //! - storage across DTCM, AXI SRAM and D2 SRAM ([`storage`]);
+//! - the independent watchdog, fed by the device loop, and the reset
+//!   reason, both in `Status` ([`watchdog`]);
 //! - 400 MHz from HSI via PLL1, I- and D-cache on; defmt over RTT.
 //!
 //! NOT RUN ON HARDWARE: it builds; the camera source's logic is tested on
@@ -18,6 +20,7 @@
 mod dcmi;
 mod storage;
 mod usb_link;
+mod watchdog;
 
 use brightpix_board_common::executor;
 use brightpix_firmware::camera::{DataWidth, DcmiSource};
@@ -26,10 +29,11 @@ use cortex_m_rt::entry;
 use defmt_rtt as _;
 use embassy_executor::Spawner;
 use embassy_futures::join::join;
+use embassy_futures::select::{select, Either};
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::usb::{self, Driver};
 use embassy_stm32::{bind_interrupts, interrupt, peripherals};
-use embassy_time::Instant;
+use embassy_time::{Instant, Timer};
 use embassy_usb::class::cdc_acm::{CdcAcmClass, State};
 use embassy_usb::Builder;
 use panic_probe as _;
@@ -103,8 +107,14 @@ type Memory = (
 #[embassy_executor::task]
 async fn device_task(memory: Memory) {
     let (axi, d2, dtcm) = memory;
+    let reset = watchdog::reset_reason();
     let p = embassy_stm32::init(clocks());
-    defmt::info!("brightpix-stm32h743: hello");
+    defmt::info!(
+        "brightpix-stm32h743: hello (reset: {})",
+        defmt::Debug2Format(&reset)
+    );
+    // From here on the device loop (or the wait for a host below) must run.
+    let iwdg = watchdog::Iwdg::start(p.IWDG1);
 
     // --- USB CDC-ACM ---------------------------------------------------------
     let mut ep_out_buffer = [0u8; 256];
@@ -155,7 +165,8 @@ async fn device_task(memory: Memory) {
 
     // --- the device loop ---------------------------------------------------------
     let buffers = storage::device_buffers(&mut axi.background, &mut axi.engine, d2, device_memory);
-    let mut device = Device::new(UsbLink::new(class), camera, buffers, BOARD);
+    let mut device = Device::new(UsbLink::new(class), camera, buffers, BOARD).with_watchdog(iwdg);
+    device.set_reset_reason(reset);
     let capabilities = device.capabilities();
     defmt::info!(
         "device: {=u32} sub-apertures, {=u32} camera pixels of maps, {=u32} open windows, {=u32} pool entries",
@@ -167,7 +178,15 @@ async fn device_task(memory: Memory) {
 
     let serve = async {
         loop {
-            device.link().wait_connection().await;
+            // Fed while no host is connected, too.
+            while let Either::Second(()) = select(
+                device.link().wait_connection(),
+                Timer::after_millis(watchdog::FEED_EVERY_MS),
+            )
+            .await
+            {
+                brightpix_firmware::device::Watchdog::feed(device.watchdog());
+            }
             defmt::info!("usb: connected");
             let Err(e) = device.run().await;
             let (overruns, sync_errors, dma_errors, undrained) = dcmi::hardware_events();

@@ -1,0 +1,667 @@
+//! `shared/protocol-vectors.json`: one test vector for every message, every
+//! variant of every enum in a message, and every error text, for other
+//! implementations of PROTOCOL.md to test themselves against.
+//!
+//! This test rebuilds the file's content from the Rust types and fails on
+//! any difference; `BRIGHTPIX_BLESS=1 cargo test -p brightpix-protocol
+//! --test protocol_vectors` rewrites it (after a deliberate protocol change).
+//! Each vector is checked both ways: the message encodes to the file's bytes,
+//! and the file's frame decodes to the message.
+
+use brightpix_protocol::wire::*;
+use brightpix_protocol::{Camera, ConfigError, LevelFilter, MapKind, MemoryKind, SelectionRule};
+use serde_json::{json, Value};
+
+const FILE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/protocol-vectors.json");
+
+fn hex(bytes: &[u8]) -> String {
+    bytes
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+fn unhex(text: &str) -> Vec<u8> {
+    text.split_whitespace()
+        .map(|b| u8::from_str_radix(b, 16).unwrap())
+        .collect()
+}
+
+/// `{"A": {"B": ...}}` → `A.B`: the variant path of a message's JSON.
+fn name_of(value: &Value) -> String {
+    let mut parts = Vec::new();
+    let mut v = value;
+    loop {
+        match v {
+            Value::Object(map) if map.len() == 1 => {
+                let (k, inner) = map.iter().next().unwrap();
+                if k.chars().next().is_some_and(char::is_uppercase) {
+                    parts.push(k.clone());
+                    v = inner;
+                    continue;
+                }
+                break;
+            }
+            Value::Object(map) => {
+                // A struct: follow its one enum-valued field, if any.
+                let enums: Vec<&Value> = map
+                    .values()
+                    .filter(|x| {
+                        matches!(x, Value::Object(m) if m.len() == 1
+                            && m.keys().next().unwrap().chars().next().is_some_and(char::is_uppercase))
+                    })
+                    .collect();
+                if enums.len() == 1 && parts.len() < 3 {
+                    v = enums[0];
+                    continue;
+                }
+                // A unit variant inside an error (`Frame { fault: "Stopped" }`).
+                let units: Vec<&str> = map
+                    .values()
+                    .filter_map(|x| x.as_str())
+                    .filter(|x| x.chars().next().is_some_and(char::is_uppercase))
+                    .collect();
+                if parts.first().map(String::as_str) == Some("Error") && units.len() == 1 {
+                    parts.push(units[0].to_string());
+                }
+                break;
+            }
+            Value::String(s) if s.chars().next().is_some_and(char::is_uppercase) => {
+                parts.push(s.clone());
+                break;
+            }
+            _ => break,
+        }
+    }
+    parts.join(".")
+}
+
+fn header(rule: SelectionRule, pixel_count: PixelCountMode) -> ConfigHeader {
+    ConfigHeader {
+        camera: Camera {
+            width: 112,
+            height: 112,
+            bit_depth: 16,
+        },
+        windows: 49,
+        rule,
+        pixel_count,
+        level_filter: None,
+        threshold: None,
+        min_flux: 0,
+        background: true,
+        gain: false,
+        reference_slopes: false,
+    }
+}
+
+fn host_messages(payload: &[u8]) -> Vec<(&'static str, HostMessage<'_>)> {
+    let mut all = vec![
+        (
+            "open a session (session id 0x1234abcd)",
+            HostMessage::hello(0x1234_abcd),
+        ),
+        (
+            "a Hello of another protocol version (the frozen prefix is what matters)",
+            HostMessage::Hello {
+                protocol: Hello {
+                    version: 1,
+                    schema: 300,
+                },
+                session: 7,
+            },
+        ),
+        (
+            "the CANARY header: subtract-next, N = 20, background map",
+            HostMessage::ConfigBegin {
+                upload_id: 0x0102_0304,
+                header: header(SelectionRule::SubtractNext, PixelCountMode::All(20)),
+            },
+        ),
+        (
+            "every optional field present; N per sub-aperture",
+            HostMessage::ConfigBegin {
+                upload_id: 1,
+                header: ConfigHeader {
+                    level_filter: Some(LevelFilter { gain_shift: 4 }),
+                    threshold: Some(-160),
+                    min_flux: 1600,
+                    gain: true,
+                    reference_slopes: true,
+                    ..header(
+                        SelectionRule::SubtractMean { count: 3 },
+                        PixelCountMode::PerSubaperture,
+                    )
+                },
+            },
+        ),
+    ];
+    for (k, rule) in [
+        SelectionRule::Threshold,
+        SelectionRule::SubtractNextDistinct,
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        all.push((
+            "another selection rule",
+            HostMessage::ConfigBegin {
+                upload_id: 2 + k as u32,
+                header: header(rule, PixelCountMode::All(5)),
+            },
+        ));
+    }
+    let tables = [
+        (
+            "one window: x 0, y 16, 16 x 16 (8 bytes per element)",
+            Table::Windows,
+            0,
+            &payload[..8],
+        ),
+        (
+            "N of two sub-apertures (2 bytes each), from byte 98",
+            Table::PixelCounts,
+            98,
+            &payload[..4],
+        ),
+        (
+            "two background pixels (i32, 4 bytes each), from byte 960",
+            Table::Background,
+            960,
+            &payload[..8],
+        ),
+        (
+            "two gain pixels (u16), from byte 0",
+            Table::Gain,
+            0,
+            &payload[..4],
+        ),
+        (
+            "one reference slope pair (2 x i32)",
+            Table::ReferenceSlopes,
+            8,
+            &payload[..8],
+        ),
+    ];
+    for (what, table, offset, bytes) in tables {
+        all.push((
+            what,
+            HostMessage::ConfigChunk {
+                upload_id: 0x0102_0304,
+                table,
+                offset,
+                bytes,
+            },
+        ));
+    }
+    all.extend([
+        (
+            "commit: CRC-32 of all table bytes",
+            HostMessage::ConfigCommit {
+                upload_id: 0x0102_0304,
+                crc32: 0xCBF4_3926,
+            },
+        ),
+        ("", HostMessage::ConfigAbort),
+        ("", HostMessage::StatusRequest),
+        ("", HostMessage::ResetLevelFilters),
+        (
+            "pixels 112.. of frame 3: 0, 1, 256, 65535 (u16 little-endian)",
+            HostMessage::PixelRows {
+                frame: 3,
+                first_pixel: 112,
+                pixels: &[0x00, 0x00, 0x01, 0x00, 0x00, 0x01, 0xff, 0xff],
+            },
+        ),
+        (
+            "capture until StopCapture",
+            HostMessage::Capture { frames: 0 },
+        ),
+        ("capture 1000 frames", HostMessage::Capture { frames: 1000 }),
+        ("", HostMessage::StopCapture),
+    ]);
+    all
+}
+
+fn device_messages() -> Vec<(&'static str, DeviceMessage<'static>)> {
+    let position = |table, offset| TablePosition { table, offset };
+    let mut all = vec![
+        (
+            "the QEMU board's HelloReply to session 0x1234abcd",
+            DeviceMessage::HelloReply(HelloReply {
+                version: PROTOCOL_VERSION,
+                schema: SCHEMA_HASH,
+                session: 0x1234_abcd,
+                capabilities: Capabilities {
+                    max_subapertures: 6400,
+                    max_camera_pixels: 65536,
+                    max_open_windows: 256,
+                    pool_entries: 69376,
+                    history_pixels: 64 * 4096,
+                    scratch_entries: 4096,
+                    max_results_per_row: 1024,
+                    max_frame_bytes: 1034,
+                    pixel_source: PixelSourceKind::Link,
+                    board: "qemu-mps2-an386",
+                },
+            }),
+        ),
+        (
+            "a device with its own camera",
+            DeviceMessage::HelloReply(HelloReply {
+                version: PROTOCOL_VERSION,
+                schema: SCHEMA_HASH,
+                session: 1,
+                capabilities: Capabilities {
+                    max_subapertures: 1024,
+                    max_camera_pixels: 0,
+                    max_open_windows: 64,
+                    pool_entries: 4096,
+                    history_pixels: 16 * 240,
+                    scratch_entries: 256,
+                    max_results_per_row: 64,
+                    max_frame_bytes: 1034,
+                    pixel_source: PixelSourceKind::Camera,
+                    board: "stm32h743-nucleo",
+                },
+            }),
+        ),
+        (
+            "a device reading pixels from a stream",
+            DeviceMessage::HelloReply(HelloReply {
+                version: PROTOCOL_VERSION,
+                schema: SCHEMA_HASH,
+                session: 0,
+                capabilities: Capabilities {
+                    max_subapertures: 6400,
+                    max_camera_pixels: 65536,
+                    max_open_windows: 256,
+                    pool_entries: 69376,
+                    history_pixels: 64 * 4096,
+                    scratch_entries: 4096,
+                    max_results_per_row: 1024,
+                    max_frame_bytes: 1034,
+                    pixel_source: PixelSourceKind::Stream,
+                    board: "qemu-mps2-an386",
+                },
+            }),
+        ),
+        (
+            "a device that has run since power-on",
+            DeviceMessage::Status(Status {
+                config_id: Some(0x0102_0304),
+                upload_id: None,
+                capturing: false,
+                frames_processed: 200,
+                frames_dropped: 1,
+                crc_errors: 2,
+                decode_errors: 3,
+                overruns: 4,
+                pixel_errors: 5,
+                session: Some(0x1234_abcd),
+                reset_reason: ResetReason::PowerOn,
+                watchdog_ms: Some(1000),
+            }),
+        ),
+    ];
+    for reason in [
+        ResetReason::Unknown,
+        ResetReason::Pin,
+        ResetReason::Brownout,
+        ResetReason::Software,
+        ResetReason::Watchdog,
+        ResetReason::Other,
+    ] {
+        all.push((
+            "a fresh device: no configuration, no session",
+            DeviceMessage::Status(Status {
+                upload_id: Some(9),
+                capturing: true,
+                reset_reason: reason,
+                ..Status::default()
+            }),
+        ));
+    }
+    let mut results = SlopeList::new();
+    for (index, slope_x, slope_y, flux, valid) in
+        [(7u16, -65536, 32768, 1000i64, true), (8, 0, 0, 0, false)]
+    {
+        results
+            .push(SlopeEntry {
+                index,
+                slope_x,
+                slope_y,
+                flux,
+                valid,
+            })
+            .unwrap();
+    }
+    all.push((
+        "two results: (-1, +0.5) px, flux 62.5 counts, valid; an invalid one",
+        DeviceMessage::Slopes { frame: 3, results },
+    ));
+    all.push((
+        "frame 3 complete, 49 results sent",
+        DeviceMessage::FrameDone {
+            frame: 3,
+            count: 49,
+        },
+    ));
+    for ack in [
+        Ack::UploadStarted {
+            upload_id: 0x0102_0304,
+        },
+        Ack::ChunkStored {
+            upload_id: 0x0102_0304,
+            table: Table::Background,
+            end: 960,
+        },
+        Ack::ConfigApplied {
+            config_id: 0x0102_0304,
+            open_windows: 7,
+            pool_entries: 1680,
+        },
+        Ack::UploadAborted { upload_id: None },
+        Ack::UploadAborted { upload_id: Some(5) },
+        Ack::LevelFiltersReset,
+        Ack::CaptureStarted { frames: 0 },
+        Ack::CaptureStopped { frames: 100 },
+    ] {
+        all.push(("", DeviceMessage::Ack(ack)));
+    }
+    let errors = [
+        DeviceError::Decode,
+        DeviceError::Crc,
+        DeviceError::FrameTooLong,
+        DeviceError::HelloRequired,
+        DeviceError::Unexpected {
+            message: MessageKind::PixelRows,
+        },
+        DeviceError::Unexpected {
+            message: MessageKind::Capture,
+        },
+        DeviceError::NoUpload,
+        DeviceError::UploadMismatch {
+            expected: 1,
+            found: 2,
+        },
+        DeviceError::ChunkOutOfOrder {
+            expected: Some(position(Table::Windows, 960)),
+            found: position(Table::Background, 0),
+        },
+        DeviceError::ChunkOutOfOrder {
+            expected: None,
+            found: position(Table::Gain, 0),
+        },
+        DeviceError::ChunkLength {
+            table: Table::Windows,
+            len: 7,
+        },
+        DeviceError::ChunkPastEnd {
+            table: Table::PixelCounts,
+            end: 100,
+            len: 98,
+        },
+        DeviceError::UploadIncomplete {
+            table: Table::Background,
+            received: 960,
+            expected: 50176,
+        },
+        DeviceError::UploadCrc {
+            computed: 1,
+            claimed: 2,
+        },
+        DeviceError::Capacity {
+            what: CapacityKind::Subapertures,
+            needed: 6401,
+            available: 6400,
+        },
+        DeviceError::Capacity {
+            what: CapacityKind::CameraPixels,
+            needed: 262144,
+            available: 65536,
+        },
+        DeviceError::Capacity {
+            what: CapacityKind::ResultsPerRow,
+            needed: 2000,
+            available: 1024,
+        },
+        DeviceError::NotConfigured,
+        DeviceError::NoCamera,
+    ];
+    for e in errors {
+        all.push(("", DeviceMessage::Error(e)));
+    }
+    let config_errors = [
+        ConfigError::CameraSize {
+            width: 0,
+            height: 112,
+        },
+        ConfigError::BitDepth { bit_depth: 17 },
+        ConfigError::NoSubapertures,
+        ConfigError::TooManySubapertures {
+            count: 20000,
+            max: 16384,
+        },
+        ConfigError::EmptyWindow { index: 3 },
+        ConfigError::WindowTooLarge {
+            index: 4,
+            width: 65,
+            height: 16,
+        },
+        ConfigError::WindowOutsideCamera { index: 5 },
+        ConfigError::PixelCountZero { index: 6 },
+        ConfigError::PixelCountListLength {
+            expected: 49,
+            found: 48,
+        },
+        ConfigError::MeanCount { count: 17 },
+        ConfigError::LevelFilterGain { gain_shift: 0 },
+        ConfigError::LevelFilterWithoutSubtraction,
+        ConfigError::MapSize {
+            map: MapKind::Background,
+            expected: 12544,
+            found: 12543,
+        },
+        ConfigError::MapSize {
+            map: MapKind::Gain,
+            expected: 12544,
+            found: 0,
+        },
+        ConfigError::MapSize {
+            map: MapKind::ReferenceSlopes,
+            expected: 49,
+            found: 48,
+        },
+        ConfigError::BackgroundOutOfRange {
+            pixel: 7,
+            value: -1_048_577,
+        },
+        ConfigError::ThresholdOutOfRange { value: 33_554_433 },
+        ConfigError::ReferenceSlopeOutOfRange { index: 8 },
+        ConfigError::NegativeMinFlux,
+        ConfigError::MemoryBudget {
+            needed: 300,
+            available: 256,
+            what: MemoryKind::OpenWindows,
+        },
+        ConfigError::MemoryBudget {
+            needed: 70000,
+            available: 69376,
+            what: MemoryKind::SelectionEntries,
+        },
+        ConfigError::MemoryBudget {
+            needed: 7000,
+            available: 6400,
+            what: MemoryKind::Subapertures,
+        },
+        ConfigError::MemoryBudget {
+            needed: 4480,
+            available: 3840,
+            what: MemoryKind::RowHistory,
+        },
+        ConfigError::MemoryBudget {
+            needed: 1024,
+            available: 256,
+            what: MemoryKind::ScratchEntries,
+        },
+    ];
+    for e in config_errors {
+        all.push(("", DeviceMessage::Error(DeviceError::Config(e.into()))));
+    }
+    let faults = [
+        FrameFault::PixelOutOfRange {
+            row: 1,
+            column: 2,
+            value: 4096,
+        },
+        FrameFault::Gap {
+            expected: 480,
+            found: 960,
+        },
+        FrameFault::Incomplete { received: 5 },
+        FrameFault::PastEnd {
+            first_pixel: 12500,
+            count: 480,
+        },
+        FrameFault::OddLength,
+        FrameFault::Reconfigured,
+        FrameFault::Stopped,
+    ];
+    for fault in faults {
+        all.push((
+            "",
+            DeviceMessage::Error(DeviceError::Frame { frame: 9, fault }),
+        ));
+    }
+    all
+}
+
+fn vector<M: serde::Serialize>(
+    direction: &str,
+    note: &str,
+    message: &M,
+    text: Option<String>,
+) -> Value {
+    let mut frame = vec![0u8; MAX_FRAME_LEN];
+    let len = encode(message, &mut frame).unwrap().len();
+    let frame = &frame[..len];
+    let mut copy = frame[..len - 1].to_vec();
+    let body = unstuff(&mut copy).unwrap().to_vec();
+    let value = serde_json::to_value(message).unwrap();
+    let mut v = json!({
+        "direction": direction,
+        "name": name_of(&value),
+        "message": value,
+        "body": hex(&body),
+        "frame": hex(frame),
+    });
+    if !note.is_empty() {
+        v["note"] = json!(note);
+    }
+    if let Some(text) = text {
+        v["text"] = json!(text);
+    }
+    v
+}
+
+fn vectors() -> Value {
+    let payload: Vec<u8> = vec![0x00, 0x00, 0x10, 0x00, 0x10, 0x00, 0x10, 0x00];
+    let mut list = Vec::new();
+    for (note, m) in host_messages(&payload) {
+        list.push(vector("host", note, &m, None));
+    }
+    for (note, m) in device_messages() {
+        let text = match &m {
+            DeviceMessage::Error(e) => Some(e.to_string()),
+            _ => None,
+        };
+        list.push(vector("device", note, &m, text));
+    }
+    json!({
+        "about": "Test vectors of the brightpix wire protocol (shared/PROTOCOL.md). Each vector: \
+                  the message as JSON (serde's externally tagged form: an enum variant is \
+                  {\"Variant\": fields} or \"Variant\"; byte strings are arrays of numbers), its \
+                  postcard body and its whole frame (COBS of body ++ CRC-32 LE, then 0x00), in hex; \
+                  `text` is the device error's English text (Display). \
+                  Checked by shared/tests/protocol_vectors.rs.",
+        "protocol_version": PROTOCOL_VERSION,
+        "schema_hash": format!("{SCHEMA_HASH:#018x}"),
+        "limits": {
+            "MAX_MESSAGE_LEN": MAX_MESSAGE_LEN,
+            "MAX_FRAME_LEN": MAX_FRAME_LEN,
+            "MAX_CHUNK_BYTES": MAX_CHUNK_BYTES,
+            "MAX_PIXEL_BYTES": MAX_PIXEL_BYTES,
+            "SLOPES_PER_MESSAGE": SLOPES_PER_MESSAGE,
+            "MAX_BOARD_NAME_LEN": MAX_BOARD_NAME_LEN,
+        },
+        "vectors": list,
+    })
+}
+
+#[test]
+fn the_vectors_file_matches_the_protocol() {
+    let expected = serde_json::to_string_pretty(&vectors()).unwrap() + "\n";
+    if std::env::var_os("BRIGHTPIX_BLESS").is_some() {
+        std::fs::write(FILE, &expected).unwrap();
+    }
+    let found = std::fs::read_to_string(FILE).unwrap_or_default();
+    assert!(
+        found == expected,
+        "{FILE} is out of date with the protocol; if the change is deliberate, run \
+         BRIGHTPIX_BLESS=1 cargo test -p brightpix-protocol --test protocol_vectors"
+    );
+}
+
+/// The file's frames decode to its messages (what an independent decoder
+/// would check), and its bodies are the frames' contents.
+#[test]
+fn every_vector_decodes_to_its_message() {
+    let file: Value = serde_json::from_str(&std::fs::read_to_string(FILE).unwrap()).unwrap();
+    let vectors = file["vectors"].as_array().unwrap();
+    assert!(vectors.len() > 80, "{} vectors", vectors.len());
+    for v in vectors {
+        let mut frame = unhex(v["frame"].as_str().unwrap());
+        assert_eq!(frame.pop(), Some(0), "{v}");
+        let mut copy = frame.clone();
+        assert_eq!(
+            hex(unstuff(&mut copy).unwrap()),
+            v["body"].as_str().unwrap()
+        );
+        let decoded = match v["direction"].as_str().unwrap() {
+            "host" => serde_json::to_value(decode::<HostMessage>(&mut frame).unwrap()),
+            _ => serde_json::to_value(decode::<DeviceMessage>(&mut frame).unwrap()),
+        }
+        .unwrap();
+        assert_eq!(decoded, v["message"], "{}", v["name"]);
+    }
+    // Every variant of both message enums is there.
+    let names: Vec<&str> = vectors
+        .iter()
+        .map(|v| v["name"].as_str().unwrap())
+        .collect();
+    for name in [
+        "Hello",
+        "ConfigBegin",
+        "ConfigChunk",
+        "ConfigCommit",
+        "ConfigAbort",
+        "StatusRequest",
+        "ResetLevelFilters",
+        "PixelRows",
+        "Capture",
+        "StopCapture",
+        "HelloReply",
+        "Ack",
+        "Error",
+        "Status",
+        "Slopes",
+        "FrameDone",
+    ] {
+        assert!(
+            names.iter().any(|n| n.split('.').next() == Some(name)),
+            "no vector of {name}"
+        );
+    }
+}
