@@ -792,31 +792,25 @@ impl Loader {
         self.error(field, ConfigFileErrorKind::Shape, message)
     }
 
-    /// A full-frame map: shape (height, width); with `frame_axis`, also
-    /// (1, height, width) (a background averaged over a cube, axis kept).
+    /// A full-frame map: shape (height, width), or (1, height, width) (a
+    /// map averaged over a cube with its axis kept); docs/CONFIG.md says so
+    /// for every map.
     fn camera_map<'a>(
         &self,
         field: &str,
         array: &'a ArrayValues,
         camera: &Camera,
-        frame_axis: bool,
     ) -> Result<&'a [f64]> {
         let (h, w) = (camera.height as usize, camera.width as usize);
         let ok = match array.shape[..] {
-            [rows, cols] => rows == h && cols == w,
-            [1, rows, cols] => frame_axis && rows == h && cols == w,
+            [rows, cols] | [1, rows, cols] => rows == h && cols == w,
             _ => false,
         };
         if !ok {
-            let also = if frame_axis {
-                format!(" or (1, {h}, {w})")
-            } else {
-                String::new()
-            };
             return Err(self.shape_error(
                 field,
                 array,
-                &format!("({h}, {w}){also}, the camera's (height, width)"),
+                &format!("({h}, {w}), the camera's (height, width)"),
             ));
         }
         Ok(&array.data)
@@ -1041,7 +1035,7 @@ impl Loader {
             None => None,
             Some(BackgroundValues::Map(array)) => {
                 let field = sources.background;
-                let map = self.camera_map(field, array, &camera, true)?;
+                let map = self.camera_map(field, array, &camera)?;
                 let mut out = Vec::with_capacity(map.len());
                 for (i, &v) in map.iter().enumerate() {
                     out.push(background_fixed(v).ok_or_else(|| {
@@ -1237,13 +1231,11 @@ impl Loader {
         };
         sources.gain = field;
         let flat = match &values.flat {
-            Some(array) => Some(self.camera_map("calibration.flat", array, camera, false)?),
+            Some(array) => Some(self.camera_map("calibration.flat", array, camera)?),
             None => None,
         };
         let weight = match &values.pixel_weight {
-            Some(array) => {
-                Some(self.camera_map("calibration.pixel_weight", array, camera, false)?)
-            }
+            Some(array) => Some(self.camera_map("calibration.pixel_weight", array, camera)?),
             None => None,
         };
         let n = camera.pixel_count();
@@ -1419,7 +1411,7 @@ height = 16
     /// Issue 10, fault 6: the guide's ranges apply to the values as
     /// written (before rounding to fixed point), a negative flat or minimum
     /// flux is an error however small, a grid pitch of 0 is refused, and
-    /// only the background may carry a leading axis of length 1.
+    /// every map may carry a leading axis of length 1 (as documented).
     #[test]
     fn ranges_apply_to_the_values_as_written() {
         let field_of = |text: String| invalid(&text).field.unwrap_or_default();
@@ -1473,21 +1465,19 @@ height = 16
             Some("centroid.reference_slopes"),
             "{err}"
         );
-        // (1, H, W): a background, yes; a flat or a pixel weight, no.
+        // (1, H, W) is a map for every key, as the guide says; (2, H, W) is not.
         write_array(dir.join("cube.npy"), &[1, 48, 64], &vec![1.0f64; n]).unwrap();
-        parse_in(
-            &dir,
-            &format!("{BASE}[calibration]\nbackground = \"cube.npy\"\n"),
-        )
-        .unwrap();
-        for key in ["flat", "pixel_weight"] {
-            let err = parse_in(
+        write_array(dir.join("two.npy"), &[2, 48, 64], &vec![1.0f64; 2 * n]).unwrap();
+        for key in ["background", "flat", "pixel_weight"] {
+            parse_in(
                 &dir,
                 &format!("{BASE}[calibration]\n{key} = \"cube.npy\"\n"),
             )
-            .unwrap_err();
+            .unwrap();
+            let err =
+                parse_in(&dir, &format!("{BASE}[calibration]\n{key} = \"two.npy\"\n")).unwrap_err();
             assert!(
-                err.to_string().contains("(1, 48, 64); expected (48, 64)"),
+                err.to_string().contains("(2, 48, 64); expected (48, 64)"),
                 "{err}"
             );
         }

@@ -152,8 +152,9 @@ fn qemu_dies_with_its_parent() {
     let mut pid = None;
     for line in std::io::BufRead::lines(std::io::BufReader::new(stdout)) {
         let line = line.unwrap();
-        if let Some(p) = line.strip_prefix("qemu-pid ") {
-            pid = Some(p.trim().parse::<u32>().unwrap());
+        // The test harness may have printed "test ... " on the same line.
+        if let Some(at) = line.find("qemu-pid ") {
+            pid = Some(line[at + 9..].trim().parse::<u32>().unwrap());
             break;
         }
     }

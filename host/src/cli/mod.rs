@@ -9,6 +9,7 @@ mod devices;
 mod paper;
 mod process;
 mod simulate_device;
+mod soak;
 mod status;
 mod stream;
 mod tune;
@@ -42,6 +43,7 @@ enum Command {
     Stream(stream::StreamArgs),
     Capture(capture::CaptureArgs),
     SimulateDevice(simulate_device::SimulateDeviceArgs),
+    Soak(soak::SoakArgs),
 }
 
 /// A count or size argument that must be at least 1 (`--chunk 0` would
@@ -70,6 +72,7 @@ pub fn main() -> ExitCode {
         Command::Stream(args) => stream::run(args),
         Command::Capture(args) => capture::run(args),
         Command::SimulateDevice(args) => simulate_device::run(args),
+        Command::Soak(args) => soak::run(args),
     };
     match outcome {
         Ok(()) => ExitCode::SUCCESS,

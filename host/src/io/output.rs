@@ -30,7 +30,6 @@ pub fn check_outputs(inputs: &[&Path], outputs: &[&Path]) -> Result<(), IoError>
         inputs.iter().map(|p| identity(p)).collect();
     let mut seen: Vec<(PathBuf, Option<(u64, u64)>)> = Vec::new();
     for &out in outputs {
-        FileFormat::from_path(out)?;
         let dir = parent(out);
         if !dir.is_dir() {
             return Err(IoError::io(
@@ -59,6 +58,7 @@ pub fn check_outputs(inputs: &[&Path], outputs: &[&Path]) -> Result<(), IoError>
             ));
         }
         seen.push(id);
+        FileFormat::from_path(out)?;
     }
     Ok(())
 }
