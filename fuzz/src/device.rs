@@ -28,6 +28,8 @@ const SIZES: SimSizes = SimSizes {
     map_pixels: 24 * 24,
     open_windows: 12,
     pool_entries: 12 * 40,
+    history_pixels: 12 * 24,
+    scratch_entries: 12 * 12,
     results_per_row: 12,
 };
 

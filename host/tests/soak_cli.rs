@@ -32,7 +32,8 @@ fn a_short_soak_in_process() {
 
 #[test]
 fn a_short_soak_in_qemu() {
-    let elf = brightpix::sim_device::qemu_elf(None).unwrap();
+    // Built afresh (incremental): an older ELF would speak another schema.
+    let elf = brightpix::sim_device::build_qemu_elf().unwrap();
     soak(&[
         "--minutes",
         "0.15",

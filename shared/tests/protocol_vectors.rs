@@ -665,3 +665,27 @@ fn every_vector_decodes_to_its_message() {
         );
     }
 }
+
+/// The project's independent Python implementation of PROTOCOL.md
+/// (`firmware/boards/qemu/scripts/check_device.py`, standard library only)
+/// decodes every device vector and encodes the Hello as the file says.
+#[test]
+fn the_python_client_agrees_with_the_vectors() {
+    let script = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../firmware/boards/qemu/scripts/check_device.py"
+    );
+    let Ok(out) = std::process::Command::new("python3")
+        .args([script, "--vectors"])
+        .output()
+    else {
+        eprintln!("python3 is not installed: the Python client was not checked");
+        return;
+    };
+    assert!(
+        out.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

@@ -167,8 +167,8 @@ class Reader:
 
 
 # HostMessage
-def msg_hello(version, schema):
-    return bytes([0]) + varint(version) + varint(schema)
+def msg_hello(version, schema, session=0xC4EC):
+    return bytes([0]) + varint(version) + varint(schema) + varint(session)
 
 
 RULES = {"threshold": (0,), "subtract-next": (1,), "subtract-next-distinct": (2,)}
@@ -218,13 +218,14 @@ def decode_device(body):
     r = Reader(body)
     kind = r.varint()
     if kind == 0:
-        version, schema = r.varint(), r.varint()
+        version, schema, session = r.varint(), r.varint(), r.varint()
         caps = dict(max_subapertures=r.varint(), max_camera_pixels=r.varint(),
                     max_open_windows=r.varint(), pool_entries=r.varint(),
                     history_pixels=r.varint(), scratch_entries=r.varint(),
                     max_results_per_row=r.varint(), max_frame_bytes=r.varint(),
                     pixel_source=SOURCES[r.varint()], board=r.bytes().decode())
-        return "HelloReply", dict(version=version, schema=schema, capabilities=caps)
+        return "HelloReply", dict(version=version, schema=schema, session=session,
+                                  capabilities=caps)
     if kind == 1:
         variant = r.varint()
         name = ACKS[variant]
@@ -251,7 +252,8 @@ def decode_device(body):
                               capturing=r.bool(), frames_processed=r.varint(),
                               frames_dropped=r.varint(), crc_errors=r.varint(),
                               decode_errors=r.varint(), overruns=r.varint(),
-                              pixel_errors=r.varint())
+                              pixel_errors=r.varint(), session=r.option(r.varint),
+                              reset_reason=r.varint(), watchdog_ms=r.option(r.varint))
     if kind == 4:
         frame_id = r.varint()
         entries = []
@@ -567,8 +569,48 @@ def check(cond, what):
 check.failed = False
 
 
+def check_vectors():
+    """This client against shared/protocol-vectors.json: every device frame
+    unframes to its body and decodes to the vector's message kind (and, for
+    HelloReply and Status, to its fields); the Hello this script sends
+    encodes to the vector's bytes."""
+    import json
+    with open(os.path.join(REPO, "shared", "protocol-vectors.json")) as f:
+        vectors = json.load(f)["vectors"]
+    count = 0
+    for v in vectors:
+        stuffed = bytes.fromhex(v["frame"])[:-1]
+        body = unframe(stuffed)
+        assert body.hex(" ") == v["body"], v["name"]
+        message = v["message"]
+        if v["direction"] == "host":
+            if "Hello" in message:
+                h = message["Hello"]
+                assert msg_hello(h["protocol"]["version"], h["protocol"]["schema"],
+                                 h["session"]) == body, v
+                assert frame(body) == bytes.fromhex(v["frame"]), v
+            continue
+        kind, fields = decode_device(body)
+        expected = message if isinstance(message, str) else next(iter(message))
+        assert kind == expected, (kind, v["name"])
+        if kind == "HelloReply":
+            h = message["HelloReply"]
+            assert (fields["version"], fields["schema"], fields["session"]) == \
+                (h["version"], h["schema"], h["session"]), v["name"]
+            assert fields["capabilities"]["board"] == h["capabilities"]["board"]
+        if kind == "Status":
+            st = message["Status"]
+            for key in ("frames_processed", "crc_errors", "session", "watchdog_ms"):
+                assert fields[key] == st[key], (key, fields, st)
+        count += 1
+    print("vectors: %d device messages decoded and the Hello encoded as in "
+          "shared/protocol-vectors.json" % count)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--vectors", action="store_true",
+                    help="only check this client against shared/protocol-vectors.json (no QEMU)")
     ap.add_argument("--elf", default=DEFAULT_ELF)
     ap.add_argument("--brightpix", default=DEFAULT_BRIGHTPIX)
     ap.add_argument("--uart-frames", type=int, default=4)
@@ -576,6 +618,9 @@ def main():
     ap.add_argument("--regular-file", action="store_true",
                     help="give --pixels a regular file that the host appends to, not a FIFO")
     opts = ap.parse_args()
+    if opts.vectors:
+        check_vectors()
+        return
     elf = os.path.abspath(opts.elf)
     version, schema = schema_from_protocol_md()
     rng = random.Random(2011)
