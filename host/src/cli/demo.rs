@@ -164,7 +164,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
 /// The device's counters on one line.
 pub fn format_status(s: &Status) -> String {
     format!(
-        "device status: config id {}, frames processed {}, dropped {}, CRC errors {}, decode errors {}, overruns {}, pixel errors {}{}",
+        "device status: config id {}, frames processed {}, dropped {}, CRC errors {}, decode errors {}, overruns {}, pixel errors {}{}; last reset: {}; watchdog: {}",
         s.config_id.map_or("none".into(), |c| format!("{c:#010x}")),
         s.frames_processed,
         s.frames_dropped,
@@ -172,6 +172,9 @@ pub fn format_status(s: &Status) -> String {
         s.decode_errors,
         s.overruns,
         s.pixel_errors,
-        if s.capturing { ", capturing" } else { "" }
+        if s.capturing { ", capturing" } else { "" },
+        s.reset_reason,
+        s.watchdog_ms
+            .map_or("none".into(), |ms| format!("{ms} ms, fed by the device loop"))
     )
 }
