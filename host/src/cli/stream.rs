@@ -105,6 +105,7 @@ pub fn run(args: StreamArgs) -> Result<()> {
         }
         let mut outcomes = Vec::with_capacity(count);
         let mut write_error = None;
+        let batch_started = std::time::Instant::now();
         let result = client.stream_frames(first as u32, &batch, |o| {
             if let Some(out) = &mut out {
                 if let Err(e) = out.push(&o, subapertures) {
@@ -130,6 +131,7 @@ pub fn run(args: StreamArgs) -> Result<()> {
         match result {
             Ok(report) => elapsed += report.elapsed,
             Err(e) => {
+                elapsed += batch_started.elapsed();
                 failure = Some(e);
                 break;
             }
