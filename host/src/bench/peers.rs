@@ -239,6 +239,9 @@ pub struct FloatPeer {
     reference: Option<Vec<[i32; 2]>>,
     values: Vec<f32>,
     scratch: Vec<f32>,
+    /// Window-local column and row of each pixel of the last window shape
+    /// (for the lane-parallel centre of gravity).
+    coordinates: ((u16, u16), Vec<f32>, Vec<f32>),
 }
 
 impl FloatPeer {
@@ -250,20 +253,36 @@ impl FloatPeer {
             min_flux: config.centroid.min_flux as f32,
             reference: config.centroid.reference_slopes.map(<[[i32; 2]]>::to_vec),
             values: vec![0.0; largest],
-            scratch: vec![0.0; largest],
+            scratch: vec![0.0; 2 * largest],
+            coordinates: ((0, 0), Vec::new(), Vec::new()),
             calibration,
         }
     }
 
+    /// Column and row of each pixel of a `width` x `height` window.
+    fn coordinates(&mut self, width: u16, height: u16) -> (&[f32], &[f32]) {
+        if self.coordinates.0 != (width, height) {
+            let count = width as usize * height as usize;
+            let w = width as usize;
+            self.coordinates = (
+                (width, height),
+                (0..count).map(|q| (q % w) as f32).collect(),
+                (0..count).map(|q| (q / w) as f32).collect(),
+            );
+        }
+        (&self.coordinates.1, &self.coordinates.2)
+    }
+
     /// `v(N)` and the largest value below it (0 if none: nothing is
-    /// subtracted), from a scratch copy of `values`.
+    /// subtracted), using `scratch` (twice `values` long).
     #[inline]
     fn levels(&self, values: &[f32], scratch: &mut [f32], n: usize) -> (f32, f32) {
         let count = values.len();
-        scratch.copy_from_slice(values);
         let k = count - n;
         match self.selector {
             Selector::Sort => {
+                let scratch = &mut scratch[..count];
+                scratch.copy_from_slice(values);
                 scratch.sort_unstable_by(f32::total_cmp);
                 let top = scratch[k];
                 let mut i = k;
@@ -273,6 +292,8 @@ impl FloatPeer {
                 (top, if i > 0 { scratch[i - 1] } else { 0.0 })
             }
             Selector::NthElement => {
+                let scratch = &mut scratch[..count];
+                scratch.copy_from_slice(values);
                 let (lower, &mut top, _) = scratch.select_nth_unstable_by(k, f32::total_cmp);
                 let below = lower
                     .iter()
@@ -288,11 +309,8 @@ impl FloatPeer {
                 )
             }
             Selector::BranchFree => {
-                let top = select_branch_free(scratch, k);
-                let mut below = f32::NEG_INFINITY;
-                for &p in &scratch[..k] {
-                    below = below.max(if p < top { p } else { f32::NEG_INFINITY });
-                }
+                let top = select_branch_free(values, k, scratch);
+                let below = largest_below(values, top);
                 (
                     top,
                     if below == f32::NEG_INFINITY {
@@ -311,7 +329,7 @@ impl Peer for FloatPeer {
         match self.selector {
             Selector::Sort => "DARC (f32 copy, quicksort, next-distinct)",
             Selector::NthElement => "nth_element quickselect (f32, next-distinct)",
-            Selector::BranchFree => "branch-free quickselect (f32, next-distinct)",
+            Selector::BranchFree => "branch-free quickselect, 8-lane sums (f32, next-distinct)",
         }
     }
 
@@ -327,19 +345,26 @@ impl Peer for FloatPeer {
             let (top, below) = if n >= count {
                 (f32::NEG_INFINITY, 0.0)
             } else {
-                self.levels(values, &mut scratch[..count], n)
+                self.levels(values, &mut scratch[..2 * count], n)
             };
-            let (mut f, mut fx, mut fy) = (0f32, 0f32, 0f32);
-            for (j, row) in values.chunks_exact(w.width as usize).enumerate() {
-                let mut row_sum = 0f32;
-                for (i, &p) in row.iter().enumerate() {
-                    let weight = if p >= top { p - below } else { 0.0 };
-                    row_sum += weight;
-                    fx += weight * i as f32;
+            let (f, fx, fy) = if self.selector == Selector::BranchFree {
+                let (columns, rows) = self.coordinates(w.width, w.height);
+                moments_lanes(values, top, below, columns, rows)
+            } else {
+                // DARC's loops: one running sum each.
+                let (mut f, mut fx, mut fy) = (0f32, 0f32, 0f32);
+                for (j, row) in values.chunks_exact(w.width as usize).enumerate() {
+                    let mut row_sum = 0f32;
+                    for (i, &p) in row.iter().enumerate() {
+                        let weight = if p >= top { p - below } else { 0.0 };
+                        row_sum += weight;
+                        fx += weight * i as f32;
+                    }
+                    f += row_sum;
+                    fy += row_sum * j as f32;
                 }
-                f += row_sum;
-                fy += row_sum * j as f32;
-            }
+                (f, fx, fy)
+            };
             out[k] = if f > self.min_flux {
                 let reference = self.reference.as_ref().map_or([0, 0], |r| r[k]);
                 PeerSlope {
@@ -358,51 +383,168 @@ impl Peer for FloatPeer {
     }
 }
 
-/// The `k`-th smallest of `values` (0-based), leaving `values[..k]` no
-/// greater and `values[k + 1..]` no smaller. Quickselect with a
-/// median-of-three pivot whose partition loops have no data-dependent
-/// branch: each element is swapped to the boundary unconditionally and the
-/// boundary advances by the comparison's 0 or 1 (a partition that found
-/// nothing below the pivot is redone on `<=`, so ties cannot stall it).
-pub fn select_branch_free(values: &mut [f32], k: usize) -> f32 {
-    assert!(k < values.len(), "k = {k} of {} values", values.len());
-    let (mut lo, mut hi) = (0, values.len());
-    while hi - lo > 8 {
-        let mid = lo + (hi - lo) / 2;
-        let (a, b, c) = (values[lo], values[mid], values[hi - 1]);
-        let pivot = a.max(b).min(a.min(b).max(c));
-        let split = partition(&mut values[lo..hi], |v| v < pivot) + lo;
-        if k < split {
-            hi = split;
-            continue;
+/// The `k`-th smallest of `values` (0-based), using `work` (at least twice
+/// `values.len()`) and leaving `values` as it was. A quickselect whose
+/// partition loops have no data-dependent branch: each value is written to
+/// both ends of the other half of `work` and one end advances by the
+/// comparison's 0 or 1 (two stores, no load of what was just stored). The
+/// pivot is a sample value near `k`'s quantile (nine spread over the
+/// values, sorted by a min/max network), so that the side kept is usually
+/// small; a partition that finds nothing below the pivot is redone on `<=`
+/// to split off the values equal to it, so ties cannot stall it.
+pub fn select_branch_free(values: &[f32], k: usize, work: &mut [f32]) -> f32 {
+    let len = values.len();
+    assert!(k < len, "k = {k} of {len} values");
+    assert!(
+        work.len() >= 2 * len,
+        "work of {} for {len} values",
+        work.len()
+    );
+    let (mut src, mut dst) = work.split_at_mut(len);
+    src.copy_from_slice(values);
+    let (mut from, mut to) = (0, len);
+    let mut k = k;
+    loop {
+        let m = to - from;
+        let part = &src[from..to];
+        if m <= 12 {
+            let mut small = [0f32; 12];
+            small[..m].copy_from_slice(part);
+            sort_network(&mut small[..m]);
+            return small[k];
         }
-        // Split off the values equal to the pivot (there is at least one).
-        let equal_end = partition(&mut values[split..hi], |v| v <= pivot) + split;
-        if k < equal_end {
-            return pivot;
-        }
-        lo = equal_end;
+        let pivot = sampled_pivot(part, k);
+        let out = &mut dst[from..to];
+        let below = split(part, out, |v| v < pivot);
+        let (keep_from, keep_to) = if k < below {
+            (0, below)
+        } else if below > 0 {
+            k -= below;
+            (below, m)
+        } else {
+            // Nothing below the pivot: split off the values equal to it.
+            let equal = split(part, out, |v| v <= pivot);
+            if k < equal {
+                return pivot;
+            }
+            k -= equal;
+            (equal, m)
+        };
+        std::mem::swap(&mut src, &mut dst);
+        (from, to) = (from + keep_from, from + keep_to);
     }
-    // Insertion sort of the last few.
-    for i in lo + 1..hi {
-        let mut j = i;
-        while j > lo && values[j - 1] > values[j] {
-            values.swap(j - 1, j);
-            j -= 1;
-        }
-    }
-    values[k]
 }
 
-/// Moves the values for which `below` holds to the front; returns how many.
+/// Writes the values of `part` for which `below` holds to the front of
+/// `out` and the others to its back; returns how many are in front.
 #[inline(always)]
-fn partition(values: &mut [f32], below: impl Fn(f32) -> bool) -> usize {
-    let mut boundary = 0;
-    for i in 0..values.len() {
-        values.swap(i, boundary);
-        boundary += below(values[boundary]) as usize;
+fn split(part: &[f32], out: &mut [f32], below: impl Fn(f32) -> bool) -> usize {
+    assert_eq!(part.len(), out.len());
+    let (mut front, mut back) = (0, out.len());
+    for &v in part {
+        // SAFETY: before the t-th value, front + (len - back) = t < len, so
+        // front < back <= len: both indices are in bounds. (Bounds checks
+        // would double the loop: this is the peer at its best.)
+        unsafe {
+            *out.get_unchecked_mut(front) = v;
+            *out.get_unchecked_mut(back - 1) = v;
+        }
+        let b = below(v) as usize;
+        front += b;
+        back -= 1 - b;
     }
-    boundary
+    front
+}
+
+/// Lanes of the lane-parallel sums: independent running sums that the
+/// compiler keeps in vector registers.
+const LANES: usize = 8;
+
+/// The largest of `values` below `top` (minus infinity if none).
+#[inline]
+fn largest_below(values: &[f32], top: f32) -> f32 {
+    let mut lanes = [f32::NEG_INFINITY; LANES];
+    let chunks = values.chunks_exact(LANES);
+    let tail = chunks.remainder();
+    for chunk in chunks {
+        for (m, &p) in lanes.iter_mut().zip(chunk) {
+            *m = m.max(if p < top { p } else { f32::NEG_INFINITY });
+        }
+    }
+    let mut largest = lanes.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b));
+    for &p in tail {
+        largest = largest.max(if p < top { p } else { f32::NEG_INFINITY });
+    }
+    largest
+}
+
+/// Sum of weights and of weights times column and row, in [`LANES`]
+/// independent sums, with weight `p - below` for `p >= top`, else 0.
+#[inline]
+fn moments_lanes(
+    values: &[f32],
+    top: f32,
+    below: f32,
+    columns: &[f32],
+    rows: &[f32],
+) -> (f32, f32, f32) {
+    let (mut f, mut fx, mut fy) = ([0f32; LANES], [0f32; LANES], [0f32; LANES]);
+    let count = values.len() / LANES * LANES;
+    for ((v, i), j) in values[..count]
+        .chunks_exact(LANES)
+        .zip(columns[..count].chunks_exact(LANES))
+        .zip(rows[..count].chunks_exact(LANES))
+    {
+        for l in 0..LANES {
+            let weight = if v[l] >= top { v[l] - below } else { 0.0 };
+            f[l] += weight;
+            fx[l] += weight * i[l];
+            fy[l] += weight * j[l];
+        }
+    }
+    let (mut f, mut fx, mut fy) = (f.iter().sum(), fx.iter().sum(), fy.iter().sum::<f32>());
+    for q in count..values.len() {
+        let weight = if values[q] >= top {
+            values[q] - below
+        } else {
+            0.0
+        };
+        f += weight;
+        fx += weight * columns[q];
+        fy += weight * rows[q];
+    }
+    (f, fx, fy)
+}
+
+/// A pivot from nine samples spread over `part`: the sample just below
+/// `k`'s quantile if `k` is in the upper half (the part above the pivot,
+/// where `k` then is, is small), just above it otherwise.
+#[inline(always)]
+fn sampled_pivot(part: &[f32], k: usize) -> f32 {
+    let m = part.len();
+    let mut sample = [0f32; 9];
+    for (i, s) in sample.iter_mut().enumerate() {
+        *s = part[(2 * i + 1) * m / 18];
+    }
+    sort_network(&mut sample);
+    let rank = (k * 9 / m).min(8);
+    sample[if 2 * k >= m {
+        rank.saturating_sub(1)
+    } else {
+        (rank + 1).min(8)
+    }]
+}
+
+/// Sorts a few values with compare-exchanges (min/max: no branches).
+#[inline(always)]
+fn sort_network(values: &mut [f32]) {
+    for i in 1..values.len() {
+        for j in (1..=i).rev() {
+            let (a, b) = (values[j - 1], values[j]);
+            values[j - 1] = a.min(b);
+            values[j] = a.max(b);
+        }
+    }
 }
 
 /// The peers of the bench, on `config`'s windows and calibration: the sort
@@ -436,12 +578,10 @@ mod tests {
                     .collect();
                 let mut sorted = values.clone();
                 sorted.sort_by(f32::total_cmp);
-                for k in 0..len {
-                    let mut v = values.clone();
-                    let got = select_branch_free(&mut v, k);
-                    assert_eq!(got, sorted[k], "len {len} spread {spread} k {k}");
-                    assert!(v[..k].iter().all(|&p| p <= got));
-                    assert!(v[k + 1..].iter().all(|&p| p >= got));
+                let mut work = vec![0f32; 2 * len];
+                for (k, &want) in sorted.iter().enumerate() {
+                    let got = select_branch_free(&values, k, &mut work);
+                    assert_eq!(got, want, "len {len} spread {spread} k {k}");
                 }
             }
         }
