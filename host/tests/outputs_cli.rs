@@ -231,3 +231,59 @@ fn an_interrupted_or_killed_stream_keeps_its_slopes() {
     drop(device);
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// Fault 5: after the device died the client kept its frames but printed
+/// "streamed 0 frames" and "slopes of 256 frames written" (252 of them
+/// NaN). Now the file holds the frames that were sent and answered, and the
+/// summaries say how many.
+#[test]
+fn when_the_device_dies_the_summary_counts_what_the_file_holds() {
+    let dir = scratch("died");
+    let (config, frames) = small_case(&dir, 20_000);
+    let device = InProcessDevice::start_pty().unwrap();
+    let out = dir.join("slopes.npy");
+    let child = brightpix()
+        .args([
+            "stream",
+            "--port",
+            device.port(),
+            "--config",
+            config.to_str().unwrap(),
+            "--frames",
+            frames.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t = Instant::now();
+    while read_array(&out).map_or(0, |a| a.shape[0]) < 20 {
+        assert!(t.elapsed() < Duration::from_secs(30), "no frames written");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    device.stop(); // the device dies mid-stream
+    let output = child.wait_with_output().unwrap();
+    let text = String::from_utf8_lossy(&output.stdout).into_owned()
+        + &String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success(), "{text}");
+    let held = rows(&out);
+    assert!((20..20_000).contains(&held), "{held}: {text}");
+    assert!(
+        text.contains(&format!("holds the slopes of {held} frames")),
+        "{text}"
+    );
+    // "streamed N of 20000 frames": N complete frames, all in the file.
+    let streamed: usize = text
+        .split("streamed ")
+        .nth(1)
+        .and_then(|t| t.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no count in: {text}"));
+    assert!(
+        streamed > 0 && streamed <= held,
+        "{streamed} vs {held}: {text}"
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}
