@@ -233,3 +233,49 @@ fn subtraction_still_helps_at_5_electrons() {
     );
     assert_better(get(&scores, sn, 20), get(&scores, th, 20), "5 e-: N=20");
 }
+
+/// PAPER.md's count of agreements matches its own table of conclusions:
+/// every row's verdict is one of agrees / agrees in part / disagrees, and
+/// the stated count is the table's.
+#[test]
+fn paper_md_counts_its_own_table() {
+    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../PAPER.md"))
+        .expect("PAPER.md");
+    let table = text
+        .split("## Conclusions side by side")
+        .nth(1)
+        .expect("the conclusions section")
+        .split("\n## ")
+        .next()
+        .unwrap();
+    let (mut agree, mut part, mut disagree, mut rows) = (0, 0, 0, 0);
+    for line in table.lines() {
+        let cells: Vec<&str> = line.split('|').map(str::trim).collect();
+        if cells.len() < 5 || cells[1].parse::<usize>().is_err() {
+            continue;
+        }
+        rows += 1;
+        assert_eq!(
+            cells[1].parse::<usize>().unwrap(),
+            rows,
+            "rows are numbered 1.."
+        );
+        let verdict = cells[4].trim_start_matches("**");
+        if verdict.starts_with("agrees in part") {
+            part += 1;
+        } else if verdict.starts_with("agrees") {
+            agree += 1;
+        } else if verdict.starts_with("disagrees") {
+            disagree += 1;
+        } else {
+            panic!("row {rows}: verdict {verdict:?} is not agrees / agrees in part / disagrees");
+        }
+    }
+    let stated = format!(
+        "of these {rows} conclusions, {agree} agree, {part} agree in part, {disagree} disagree"
+    );
+    assert!(
+        text.contains(&stated),
+        "PAPER.md must state the table's count: {stated:?}"
+    );
+}

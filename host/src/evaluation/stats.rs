@@ -33,22 +33,30 @@ pub fn indistinguishable_from_best(scores: &[&Score], axis: Axis, sigmas: f64) -
 /// standard error propagated from theirs (delta method, the two treated as
 /// independent). `None` if it never changes sign.
 pub fn zero_crossing(points: &[(f64, Estimate)]) -> Option<Estimate> {
-    points.windows(2).find_map(|w| {
-        let ((x1, a), (x2, b)) = (w[0], w[1]);
-        if a.value.signum() == b.value.signum() || a.value == b.value {
-            return None;
-        }
-        let t = a.value / (a.value - b.value);
-        let x = x1 + t * (x2 - x1);
-        // dx/da = (x2 - x1) * -b / (a - b)^2, dx/db = (x2 - x1) * a / (a - b)^2
-        let den = (a.value - b.value).powi(2);
-        let da = (x2 - x1) * b.value / den;
-        let db = (x2 - x1) * a.value / den;
-        Some(Estimate {
-            value: x,
-            se: ((da * a.se).powi(2) + (db * b.se).powi(2)).sqrt(),
+    zero_crossings(points).into_iter().next()
+}
+
+/// Every sign change of [`zero_crossing`]'s kind, in order of `x`.
+pub fn zero_crossings(points: &[(f64, Estimate)]) -> Vec<Estimate> {
+    points
+        .windows(2)
+        .filter_map(|w| {
+            let ((x1, a), (x2, b)) = (w[0], w[1]);
+            if a.value.signum() == b.value.signum() || a.value == b.value {
+                return None;
+            }
+            let t = a.value / (a.value - b.value);
+            let x = x1 + t * (x2 - x1);
+            // dx/da = (x2 - x1) * -b / (a - b)^2, dx/db = (x2 - x1) * a / (a - b)^2
+            let den = (a.value - b.value).powi(2);
+            let da = (x2 - x1) * b.value / den;
+            let db = (x2 - x1) * a.value / den;
+            Some(Estimate {
+                value: x,
+                se: ((da * a.se).powi(2) + (db * b.se).powi(2)).sqrt(),
+            })
         })
-    })
+        .collect()
 }
 
 /// One score from the same (method, N) on several batches: the frames

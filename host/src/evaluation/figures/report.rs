@@ -7,7 +7,7 @@
 use std::fmt::Write as _;
 
 use super::{axis_words, best_row, FigureResult, Row, CLIPPED_ALL};
-use crate::evaluation::stats::{indistinguishable_from_best, pooled, zero_crossing};
+use crate::evaluation::stats::{indistinguishable_from_best, pooled, zero_crossings};
 use crate::evaluation::{Axis, Estimate, Method, Score};
 
 fn pm(e: Estimate) -> String {
@@ -270,18 +270,25 @@ fn crossover_section(result: &FigureResult) -> String {
         Some(pick(Method::THRESHOLD)?.paired_difference(pick(Method::SUBTRACT_NEXT)?, axis))
     };
     let mut s = format!(
-        "\nWhere threshold overtakes subtract-next along `{}` (R(threshold) - R(subtract-next) changes sign; linear interpolation between the bracketing cases, standard error by the delta method):\n\n| N | crossover |\n|---|---|\n",
+        "\nWhere threshold overtakes subtract-next along `{}` (every sign change of R(threshold) - R(subtract-next), paired; linear interpolation between the bracketing cases, standard error by the delta method):\n\n| N | crossover |\n|---|---|\n",
         fig.parameter
     );
     for n in [Some(10), Some(20), Some(32), Some(50), None] {
         let points: Vec<(f64, Estimate)> = (0..fig.cases.len())
             .filter_map(|ci| diff_at(ci, n).map(|d| (fig.cases[ci].value, d)))
-            .filter(|(_, d)| d.value.is_finite() && d.se.is_finite())
+            // se = 0: the same estimator on both sides (all pixels).
+            .filter(|(_, d)| d.value.is_finite() && d.se.is_finite() && d.se > 0.0)
             .collect();
         let label = n.map_or("each at its best N".to_string(), |n| n.to_string());
-        let text = match zero_crossing(&points) {
-            Some(c) => format!("{:.2} ± {:.2}", c.value, c.se),
-            None => "none in the range computed".to_string(),
+        let crossings = zero_crossings(&points);
+        let text = if crossings.is_empty() {
+            "none in the range computed".to_string()
+        } else {
+            crossings
+                .iter()
+                .map(|c| format!("{:.2} ± {:.2}", c.value, c.se))
+                .collect::<Vec<_>>()
+                .join(", ")
         };
         let _ = writeln!(s, "| {label} | {text} |");
     }

@@ -143,7 +143,10 @@ pub fn run_spots(opts: &RunOptions) -> Result<String> {
     )?);
     let mut s = String::from("### Spot images (`spots`)\n\n");
     for p in &written {
-        let _ = writeln!(s, "- {}", p.display());
+        let name = p.file_name().map_or(p.display().to_string(), |n| {
+            n.to_string_lossy().into_owned()
+        });
+        let _ = writeln!(s, "- {name}");
     }
     std::fs::write(opts.out.join("spots.md"), &s)?;
     Ok(s)
