@@ -266,9 +266,11 @@ impl PyDevice {
     /// ``verify=True`` checks every integer against the reference, which
     /// has seen every frame streamed since :meth:`configure` (so the level
     /// filter is followed across calls), and raises ``MismatchError`` on
-    /// any difference. ``config`` tells the client the configuration of a
-    /// device configured earlier (no upload; the reference starts from a
-    /// reset level filter).
+    /// any difference. With the level filter on, a ``verify=False`` call
+    /// leaves the reference behind the device: verifying again then needs
+    /// :meth:`configure` (a ``ValueError`` says so). ``config`` tells the
+    /// client the configuration of a device configured earlier (no upload;
+    /// the reference starts from a reset level filter).
     #[pyo3(signature = (frames, verify = true, *, config = None))]
     fn stream(
         &self,
@@ -295,6 +297,13 @@ impl PyDevice {
                 ));
             };
             let processing = &config.get().inner;
+            if verify && c.verifier.is_none() {
+                return Err(PyValueError::new_err(
+                    "cannot verify: with the level filter on, the reference must see every frame \
+                     the device has seen since its configuration, and frames were streamed with \
+                     verify=False; call configure(config) again to restart both",
+                ));
+            }
             let block = camera_frames(frames, &processing.camera, "frames")?;
             let pixels = block.pixels();
             let count = block.count;
@@ -321,6 +330,10 @@ impl PyDevice {
                 (outcomes, result)
             });
             c.next_frame = first.wrapping_add(count as u32);
+            if !verify && processing.level_filter.is_some() {
+                // The device's filters moved on without the reference.
+                c.verifier = None;
+            }
             let outputs = outputs_of(&outcomes, first, count, subapertures);
             let result_set = PyResultSet::new(py, outputs, config, "device", block.single)?;
             let report = result.as_ref().copied().unwrap_or_default();

@@ -50,6 +50,11 @@ def test_level_filter_is_followed_across_stream_calls(canary_frames: np.ndarray)
         device.configure(config)
         first = device.stream(canary_frames[:8])
         second = device.stream(canary_frames[8:])  # verified against the continuing reference
+        device.stream(canary_frames[:2], verify=False)
+        with pytest.raises(ValueError, match="cannot verify"):
+            device.stream(canary_frames[:2])
+        device.configure(config)
+        assert np.array_equal(device.stream(canary_frames[:8]).slopes_q16, expected.slopes_q16[:8])
     both = np.concatenate([first.slopes_q16, second.slopes_q16])
     assert np.array_equal(both, expected.slopes_q16)
     # and the filter matters here: restarting it changes the results
