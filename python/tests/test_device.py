@@ -3,6 +3,7 @@ device loop in-process, and the firmware ELF in QEMU when qemu-system-arm is pre
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 
@@ -11,10 +12,17 @@ import pytest
 
 import brightpix
 
-QEMU_ELF = (
-    Path(__file__).resolve().parents[2]
-    / "firmware/target/thumbv7em-none-eabihf/release/brightpix-qemu"
-)
+REPO = Path(__file__).resolve().parents[2]
+ELF_PATH = "thumbv7em-none-eabihf/release/brightpix-qemu"
+
+
+def qemu_elf() -> Path | None:
+    """The newest QEMU firmware build: where `cargo build --release` in firmware/ puts it."""
+    dirs = [REPO / "firmware" / "target"]
+    if os.environ.get("CARGO_TARGET_DIR"):
+        dirs.insert(0, Path(os.environ["CARGO_TARGET_DIR"]))
+    built = [d / ELF_PATH for d in dirs if (d / ELF_PATH).exists()]
+    return max(built, key=lambda p: p.stat().st_mtime, default=None)
 
 
 def test_configure_stream_verify_in_process(
@@ -103,12 +111,12 @@ def test_device_errors_are_python_exceptions(
 
 @pytest.mark.skipif(shutil.which("qemu-system-arm") is None, reason="qemu-system-arm not installed")
 @pytest.mark.skipif(
-    not QEMU_ELF.exists(), reason="QEMU firmware not built (cd firmware && cargo build --release)"
+    qemu_elf() is None, reason="QEMU firmware not built (cd firmware && cargo build --release)"
 )
 def test_configure_stream_verify_in_qemu(
     canary: brightpix.Config, canary_frames: np.ndarray
 ) -> None:
-    with brightpix.simulated_device(qemu=True) as port:
+    with brightpix.simulated_device(qemu=True, elf=qemu_elf()) as port:
         assert port.pixels_fifo is not None
         with brightpix.Device(port, timeout=5.0) as device:
             assert "qemu" in device.info["board"].lower() or device.info["board"]
