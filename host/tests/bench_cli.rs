@@ -146,3 +146,130 @@ fn bad_arguments_are_refused_before_any_work() {
         assert!(stderr.contains(expected), "{all:?}: {stderr}");
     }
 }
+
+/// A source tree whose QEMU bench script is a stand-in that prints the
+/// contract's `BENCH` lines (for `--config`, with the sizes of the files it
+/// was given), and a `qemu-system-arm` on PATH: the plumbing of
+/// `brightpix bench` without emulating anything.
+fn fake_tree(name: &str) -> (PathBuf, String) {
+    let root = scratch(name).join("tree");
+    let scripts = root.join("firmware/boards/qemu/scripts");
+    std::fs::create_dir_all(&scripts).unwrap();
+    let bin = root.join("bin");
+    std::fs::create_dir_all(&bin).unwrap();
+    let script = r#"#!/bin/sh
+case "$1" in m4) name=cortex-m4 ;; m7) name=cortex-m7 ;; *) echo "bad core $1" >&2; exit 2 ;; esac
+shift
+echo "the bench's own table"
+if [ "$1" = "--config" ] && [ "$3" = "--frames" ]; then
+  echo "BENCH {\"workload\":\"user\",\"core\":\"$name\",\"instr_per_px\":24.0,\"floor_instr_per_px\":8.0,\"last_row_instructions\":4800,\"pixels\":50176,\"frames\":4,\"config_bytes\":$(wc -c < "$2"),\"frames_bytes\":$(wc -c < "$4")}"
+else
+  echo "BENCH {\"workload\":\"canary-subtract-next-n20\",\"core\":\"$name\",\"instr_per_px\":20.0,\"floor_instr_per_px\":8.0,\"last_row_instructions\":1900,\"pixels\":12544,\"frames\":8}"
+fi
+"#;
+    for (path, text) in [
+        (scripts.join("run-bench"), script),
+        (bin.join("qemu-system-arm"), "#!/bin/sh\nexit 0\n"),
+    ] {
+        std::fs::write(&path, text).unwrap();
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o755)).unwrap();
+    }
+    let path = format!(
+        "{}:{}",
+        bin.display(),
+        std::env::var("PATH").unwrap_or_default()
+    );
+    (root, path)
+}
+
+#[test]
+fn qemu_rows_come_from_the_bench_script_into_the_table_and_json() {
+    let (root, path) = fake_tree("qemu");
+    let json = root.join("figures.json");
+    let run = Command::new(env!("CARGO_BIN_EXE_brightpix"))
+        .args(["bench", "--qemu-only", "--json", json.to_str().unwrap()])
+        .current_dir(&root)
+        .env("PATH", path)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{}{stdout}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let row = stdout
+        .lines()
+        .find(|l| l.starts_with("canary-subtract-next-n20"))
+        .unwrap_or_else(|| panic!("{stdout}"));
+    let numbers: Vec<&str> = row.split_whitespace().skip(1).collect();
+    assert_eq!(
+        numbers,
+        ["20.00", "2.50", "1900", "20.00", "2.50", "1900"],
+        "{row}"
+    );
+    let rows: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let cores: Vec<&str> = rows
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["core"].as_str().unwrap())
+        .collect();
+    assert_eq!(cores, ["cortex-m4", "cortex-m7"]);
+    assert_eq!(rows[0]["instr_per_px"], 20.0);
+    assert_eq!(rows[0]["floor_instr_per_px"], 8.0);
+    assert_eq!(rows[0]["last_row_instructions"], 1900.0);
+}
+
+#[test]
+fn a_user_configuration_goes_to_the_qemu_bench_as_upload_bytes_and_raw_frames() {
+    let (root, path) = fake_tree("qemu-user");
+    let frames = root.join("frames.npy");
+    let pixels: Vec<u16> = (0..6 * 112 * 112).map(|k| 50 + (k % 11) as u16).collect();
+    brightpix::io::write_array(&frames, &[6, 112, 112], &pixels).unwrap();
+    let config = examples().join("canary.toml");
+    let json = root.join("figures.json");
+    let run = Command::new(env!("CARGO_BIN_EXE_brightpix"))
+        .args(["bench", "--qemu-only", "--config"])
+        .arg(&config)
+        .arg("--frames")
+        .arg(&frames)
+        .args(["--camera-rate", "1000", "--json"])
+        .arg(&json)
+        .current_dir(&root)
+        .env("PATH", path)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{}{stdout}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    // 480 MHz / 24 instructions per pixel = 20 Mpx/s; 4800 / 480 = 10 us; a
+    // 112x112 camera at 1 kHz is 12.5 Mpx/s: 63% of the board.
+    assert!(
+        stdout.contains("20.0 Mpx/s per board; 10.0 us after the last row"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("FITS one board (63%"), "{stdout}");
+    let rows: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let upload = brightpix::bench::qemu::config_upload_bytes(
+        &brightpix::config_file::ProcessingConfig::load(&config)
+            .unwrap()
+            .view(),
+    );
+    for row in rows.as_array().unwrap() {
+        assert_eq!(row["workload"], "user");
+        assert_eq!(row["config_bytes"], upload.len());
+        assert_eq!(
+            row["frames_bytes"],
+            4 * 112 * 112 * 2,
+            "--qemu-frames 4 by default"
+        );
+        assert_eq!(row["px_per_s_per_board"], 20e6);
+    }
+}

@@ -306,7 +306,7 @@ pub fn peer_table(rows: &[HostRow]) -> String {
         ));
         for peer in &row.peers {
             out.push_str(&format!(
-                "  {:<48} {:>8.1} Mpx/s  {:>6.2}x the engine's time  {} (max |slope diff| {:.1e} px, {})\n",
+                "  {:<58} {:>7.1} Mpx/s  {:>5.2}x the engine's time  {} (max |slope diff| {:.1e} px, {})\n",
                 peer.name,
                 peer.mpx_per_s,
                 peer.x_engine,

@@ -131,6 +131,16 @@ pub fn run(args: BenchArgs) -> Result<()> {
         None => None,
     };
 
+    // The camera a --camera-rate applies to.
+    let camera = match (args.camera_size, &user) {
+        (Some((w, h)), _) => Some((w as u64 * h as u64, format!("{w}x{h}"))),
+        (None, Some(workload)) => Some((
+            workload.shape.pixels_per_frame() as u64,
+            format!("{}x{}", workload.shape.width, workload.shape.height),
+        )),
+        (None, None) => None,
+    };
+
     let mut qemu_rows = Vec::new();
     let mut qemu_problem = None;
     if !args.host_only {
@@ -211,7 +221,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         println!();
         print!(
             "{}",
-            capacity_report(path, &args, &qemu_rows, host_rows.first())
+            capacity_report(path, &args, camera.as_ref(), &qemu_rows, host_rows.first())
         );
     }
     if let Some(path) = &args.json {
@@ -280,11 +290,11 @@ fn qemu_table(rows: &[QemuRow]) -> String {
 fn capacity_report(
     path: &Path,
     args: &BenchArgs,
+    camera: Option<&(u64, String)>,
     qemu_rows: &[QemuRow],
     host: Option<&HostRow>,
 ) -> String {
     let mut out = format!("Your configuration ({}):\n", path.display());
-    let camera = camera_pixels(args, host);
     for core in QemuCore::ALL {
         let Some(row) = qemu_rows
             .iter()
@@ -303,7 +313,7 @@ fn capacity_report(
             capacity.latency_us,
             row.last_row_instructions
         ));
-        if let (Some(rate), Some((pixels, size))) = (args.camera_rate, &camera) {
+        if let (Some(rate), Some((pixels, size))) = (args.camera_rate, camera) {
             let needed = rate * *pixels as f64;
             let share = needed / capacity.px_per_s;
             out.push_str(&format!(
@@ -323,7 +333,7 @@ fn capacity_report(
             "  this host: {:.1} Mpx/s on {} threads ({:.1} on one core)",
             host.mpx_per_s, host.threads, host.mpx_per_s_one_core
         ));
-        if let (Some(rate), Some((pixels, size))) = (args.camera_rate, &camera) {
+        if let (Some(rate), Some((pixels, size))) = (args.camera_rate, camera) {
             let needed = rate * *pixels as f64;
             out.push_str(&format!(
                 "; a {size} camera at {rate} Hz ({:.1} Mpx/s) {}",
@@ -338,15 +348,6 @@ fn capacity_report(
         out.push('\n');
     }
     out
-}
-
-/// The camera's pixel count and its size in words.
-fn camera_pixels(args: &BenchArgs, host: Option<&HostRow>) -> Option<(u64, String)> {
-    match (args.camera_size, host) {
-        (Some((w, h)), _) => Some((w as u64 * h as u64, format!("{w}x{h}"))),
-        (None, Some(host)) => Some((host.pixels_per_frame as u64, "configured".into())),
-        (None, None) => None,
-    }
 }
 
 /// A board's capacity from a QEMU row.
