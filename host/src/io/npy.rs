@@ -72,11 +72,67 @@ pub(crate) fn fortran_to_c<T: Copy>(data: &[T], shape: &[usize]) -> Vec<T> {
     out
 }
 
+/// Checks the `.npy` prefix (magic, version, header length) against the
+/// file's size before a reader trusts it, and returns the data offset and
+/// the file's length. (A 128-byte file whose header length field says 3.6 GB
+/// made the reader allocate that much: found by `fuzz/`'s npy_reader.)
+fn check_prefix(path: &Path, file: &mut File) -> Result<(u64, u64), IoError> {
+    use std::io::Read;
+    let io = |e| IoError::io(path, e);
+    let len = file.metadata().map_err(io)?.len();
+    let mut prefix = [0u8; 12];
+    let n = file.read(&mut prefix).map_err(io)?;
+    file.seek(std::io::SeekFrom::Start(0)).map_err(io)?;
+    if n < 10 || &prefix[..6] != b"\x93NUMPY" {
+        return Err(IoError::malformed(
+            path,
+            "not a readable NumPy .npy file (no \\x93NUMPY magic)",
+        ));
+    }
+    let (header_len, header_start) = match prefix[6] {
+        1 => (u16::from_le_bytes([prefix[8], prefix[9]]) as u64, 10),
+        2 | 3 if n == 12 => (
+            u32::from_le_bytes([prefix[8], prefix[9], prefix[10], prefix[11]]) as u64,
+            12,
+        ),
+        v => {
+            return Err(IoError::malformed(
+                path,
+                format!(".npy format version {v} is not 1, 2 or 3"),
+            ))
+        }
+    };
+    if header_start + header_len > len {
+        return Err(IoError::malformed(
+            path,
+            format!("the .npy header claims {header_len} bytes; the file has {len}"),
+        ));
+    }
+    Ok((header_start + header_len, len))
+}
+
 /// Reads any integer or float `.npy` array as `f64`, in C order.
 pub fn read_array(path: &Path) -> Result<Array, IoError> {
-    let file = File::open(path).map_err(|e| IoError::io(path, e))?;
+    let mut file = File::open(path).map_err(|e| IoError::io(path, e))?;
+    let (data_offset, file_len) = check_prefix(path, &mut file)?;
     let npy = NpyFile::new(BufReader::new(file)).map_err(|e| header_error(path, e))?;
     let shape = shape_of(npy.header());
+    // The data the shape promises must be in the file (before allocating it).
+    let values = shape.iter().try_fold(1u64, |n, &d| n.checked_mul(d as u64));
+    let item = npy.header().dtype().num_bytes().unwrap_or(1) as u64;
+    match values.and_then(|v| v.checked_mul(item)) {
+        Some(bytes) if bytes <= file_len - data_offset => {}
+        _ => {
+            return Err(IoError::malformed(
+                path,
+                format!(
+                    "the .npy header's shape {} needs more data than the file's {} bytes",
+                    shape_string(&shape),
+                    file_len - data_offset
+                ),
+            ))
+        }
+    }
     let order = npy.header().order();
     let dtype = npy.header().dtype();
     let unsupported = || {
@@ -122,6 +178,7 @@ pub fn read_array(path: &Path) -> Result<Array, IoError> {
 /// Locates the frames of a uint8/uint16 `.npy` of shape (frames, height,
 /// width) or (height, width).
 pub(crate) fn frame_layout(path: &Path, file: &mut File) -> Result<FrameLayout, IoError> {
+    check_prefix(path, file)?;
     let header = NpyHeader::from_reader(&mut *file).map_err(|e| header_error(path, e))?;
     let data_offset = file.stream_position().map_err(|e| IoError::io(path, e))?;
     let dims = shape_of(&header);
@@ -218,6 +275,31 @@ mod tests {
         out.extend_from_slice(dict.as_bytes());
         out.extend_from_slice(data);
         out
+    }
+
+    /// Found by the npy_reader fuzz target: a header length or a shape
+    /// larger than the file is an error, not an allocation of gigabytes.
+    #[test]
+    fn lengths_beyond_the_file_are_refused_before_allocating() {
+        let dir = temp_dir("npyhuge");
+        let path = dir.join("huge.npy");
+        // Version 3, header length 0xd884ff8a (3.6 GB), in a 128-byte file.
+        let mut bytes = b"\x93NUMPY\x03\x00\x8a\xff\x84\xd8".to_vec();
+        bytes.resize(128, b' ');
+        std::fs::write(&path, &bytes).unwrap();
+        for e in [
+            read_array(&path).unwrap_err(),
+            FrameSource::open(&path).err().unwrap(),
+        ] {
+            assert!(
+                e.to_string().contains("header claims 3632594826 bytes"),
+                "{e}"
+            );
+        }
+        // A shape of 10^12 values with no data.
+        std::fs::write(&path, raw_npy("<f8", false, "(1000000, 1000000)", &[])).unwrap();
+        let e = read_array(&path).unwrap_err();
+        assert!(e.to_string().contains("needs more data"), "{e}");
     }
 
     #[test]
