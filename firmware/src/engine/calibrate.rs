@@ -139,6 +139,41 @@ pub fn value<S: Steps>(c: &Calibration<'_>, r: u16, pixel: usize) -> i32 {
     d
 }
 
+/// The calibrated value of raw pixel `r`, the `k`-th of a run whose maps
+/// are `background` and `gain` (the run's slices of them; empty when the
+/// step is absent) and with the fixed `threshold` (SPEC.md §2).
+#[inline(always)]
+pub fn value_in_run<S: Steps>(
+    r: u16,
+    k: usize,
+    background: &[i32],
+    gain: &[u16],
+    threshold: i32,
+) -> i32 {
+    let mut d = (r as i32) << 4;
+    if S::BACKGROUND {
+        d -= background[k];
+    }
+    if S::GAIN {
+        d = ((d as i64 * gain[k] as i64) >> GAIN_FRACTION_BITS) as i32;
+    }
+    if S::THRESHOLD && d < threshold {
+        d = 0;
+    }
+    d
+}
+
+/// A run's slices of the maps (empty where a map is absent) and the fixed
+/// threshold (`i32::MIN` if absent), for [`value_in_run`].
+#[inline(always)]
+pub fn run_maps<'a>(c: &Calibration<'a>, pixel: usize, len: usize) -> (&'a [i32], &'a [u16], i32) {
+    (
+        c.background.map_or(&[][..], |b| &b[pixel..pixel + len]),
+        c.gain.map_or(&[][..], |g| &g[pixel..pixel + len]),
+        c.threshold.unwrap_or(i32::MIN),
+    )
+}
+
 /// What the pre-filter needs to know of a window's calibration maps.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct WindowBounds {

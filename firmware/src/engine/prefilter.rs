@@ -1,6 +1,7 @@
 //! The pre-filter: does any raw pixel of a run reach a value? Most row
 //! segments of a window hold no candidate, and this answers for a whole
-//! segment before any pixel is calibrated.
+//! segment before any pixel is calibrated. Also the other word-at-a-time
+//! loops of the engine's hot path, each with its portable twin.
 //!
 //! On Cortex-M4/M7 (ARMv7E-M) it tests two pixels per instruction with
 //! `UQSUB16` (two lanes of unsigned saturating subtraction): a lane is
@@ -27,6 +28,109 @@ pub fn any_at_least(raw: &[u16], floor: u16) -> bool {
 pub fn any_at_least_portable(raw: &[u16], floor: u16) -> bool {
     let below = floor.wrapping_sub(1);
     raw.iter().fold(0, |any, &r| any | r.saturating_sub(below)) != 0
+}
+
+/// Calls `f(k, r)` for each pixel `raw[k] = r` with `r >= floor`, in
+/// order, until `f` returns `false`; returns the offset after the pixel that
+/// stopped it, or `raw.len()`.
+///
+/// On Cortex-M, two pixels at a time: a pair whose `UQSUB16` against
+/// `floor - 1` is zero is skipped with three instructions.
+#[inline(always)]
+pub fn for_each_at_least(raw: &[u16], floor: u16, mut f: impl FnMut(usize, u16) -> bool) -> usize {
+    if floor == 0 {
+        for (k, &r) in raw.iter().enumerate() {
+            if !f(k, r) {
+                return k + 1;
+            }
+        }
+        return raw.len();
+    }
+    let below = floor - 1;
+    #[cfg(target_arch = "arm")]
+    {
+        let lanes = below as u32 * 0x0001_0001;
+        // SAFETY: any pair of u16 is a valid u32; align_to only splits the
+        // slice where the words are aligned.
+        let (head, words, tail) = unsafe { raw.align_to::<u32>() };
+        let mut k = 0;
+        for &r in head {
+            if r > below && !f(k, r) {
+                return k + 1;
+            }
+            k += 1;
+        }
+        for &w in words {
+            if uqsub16(w, lanes) != 0 {
+                let (lo, hi) = (w as u16, (w >> 16) as u16);
+                if lo > below && !f(k, lo) {
+                    return k + 1;
+                }
+                if hi > below && !f(k + 1, hi) {
+                    return k + 2;
+                }
+            }
+            k += 2;
+        }
+        for &r in tail {
+            if r > below && !f(k, r) {
+                return k + 1;
+            }
+            k += 1;
+        }
+        raw.len()
+    }
+    #[cfg(not(target_arch = "arm"))]
+    {
+        for (k, &r) in raw.iter().enumerate() {
+            if r > below && !f(k, r) {
+                return k + 1;
+            }
+        }
+        raw.len()
+    }
+}
+
+/// `to.copy_from_slice(from)` for words (the engine's row history). On
+/// Cortex-M with `LDM`/`STM`, four words (eight pixels) per pair of
+/// instructions; [`copy_words_portable`] is its twin.
+#[inline(always)]
+pub fn copy_words(from: &[u32], to: &mut [u32]) {
+    assert_eq!(from.len(), to.len());
+    #[cfg(target_arch = "arm")]
+    {
+        let quads = from.len() / 4;
+        if quads > 0 {
+            // SAFETY: reads and writes exactly `4 * quads` words within the
+            // two slices (equal lengths, asserted); r2-r5 are clobbered.
+            unsafe {
+                core::arch::asm!(
+                    "2:",
+                    "ldm {f}!, {{r2, r3, r4, r5}}",
+                    "stm {t}!, {{r2, r3, r4, r5}}",
+                    "subs {n}, {n}, #1",
+                    "bne 2b",
+                    f = inout(reg) from.as_ptr() => _,
+                    t = inout(reg) to.as_mut_ptr() => _,
+                    n = inout(reg) quads => _,
+                    out("r2") _, out("r3") _, out("r4") _, out("r5") _,
+                    options(nostack),
+                );
+            }
+        }
+        let done = quads * 4;
+        for (t, f) in to[done..].iter_mut().zip(&from[done..]) {
+            *t = *f;
+        }
+    }
+    #[cfg(not(target_arch = "arm"))]
+    copy_words_portable(from, to);
+}
+
+/// The portable definition of [`copy_words`].
+#[inline(always)]
+pub fn copy_words_portable(from: &[u32], to: &mut [u32]) {
+    to.copy_from_slice(from);
 }
 
 /// `UQSUB16`: two lanes of `a - b` saturated at 0.
@@ -74,6 +178,25 @@ mod dsp {
     pub fn any_at_least(raw: &[u16], floor: u16) -> bool {
         let below = floor.wrapping_sub(1);
         let lanes = below as u32 * 0x0001_0001;
+        // The usual run: word-aligned, a whole number of words (a window's
+        // row segment of even width at an even column).
+        if (raw.as_ptr() as usize | raw.len()) & 1 == 0 && raw.as_ptr() as usize & 2 == 0 {
+            // SAFETY: aligned to 4 and `2 * (len / 2)` u16 long (checked).
+            let words =
+                unsafe { core::slice::from_raw_parts(raw.as_ptr() as *const u32, raw.len() / 2) };
+            let mut any = 0;
+            let mut quads = words.chunks_exact(4);
+            for q in &mut quads {
+                any |= uqsub16(q[0], lanes)
+                    | uqsub16(q[1], lanes)
+                    | uqsub16(q[2], lanes)
+                    | uqsub16(q[3], lanes);
+            }
+            for &w in quads.remainder() {
+                any |= uqsub16(w, lanes);
+            }
+            return any != 0;
+        }
         // SAFETY: any pair of u16 is a valid u32; align_to only splits the
         // slice where the words are aligned.
         let (head, words, tail) = unsafe { raw.align_to::<u32>() };

@@ -8,14 +8,16 @@
 //!
 //! | tier | pixels | kept as |
 //! |---|---|---|
-//! | front | `p > hint` | value and position, in the candidate buffer (from its start) |
-//! | hint ties | `p == hint` | count and coordinate sums |
-//! | back | `low < p < hint` | value and position, in the candidate buffer (from its end) |
-//! | low ties | `p == low` (when `low < hint`) | count and coordinate sums |
+//! | front | `p > hint`, and some `p == hint` | value and position, in the candidate buffer (from its start) |
+//! | hint ties | the other `p == hint` | count and coordinate sums |
+//! | back | `low <= p < hint`, but for the low ties | value and position, in the candidate buffer (from its end) |
+//! | low ties | some `p == low` (when `low < hint`) | count and coordinate sums |
 //!
-//! Pixels below `low` are not kept. Invariant: every pixel seen so far at or
-//! above `low` is in its tier. So the tiers hold the top of the window's
-//! sorted values exactly, down to `low`, already partitioned at the hint.
+//! The engine's scan puts pixels equal to a threshold into the buffer like
+//! any other; only a compaction gathers them into a tie bucket. Pixels below
+//! `low` are not kept. Invariant: every pixel seen so far at or above `low`
+//! is in one tier. So the tiers hold the top of the window's sorted values
+//! exactly, down to `low`, already partitioned at the hint.
 //!
 //! Everything a rule needs lies at or above a *cutoff* that only rises as
 //! pixels arrive: `v(N+1)` for `subtract-next`, `v(N)` for `threshold`, the

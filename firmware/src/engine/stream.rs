@@ -256,7 +256,7 @@ impl<'c, 'm> Engine<'c, 'm> {
             if self.history_rows > 0 {
                 let at =
                     (self.row as usize % self.history_rows) * width as usize + self.column as usize;
-                self.memory.history[at..at + take].copy_from_slice(part);
+                copy_pixels(part, &mut self.memory.history[at..at + take]);
             }
             if let Err(bad) = self.push_row_part::<S, CHECK>(part, sink) {
                 let error = FrameError::PixelOutOfRange {
@@ -371,6 +371,31 @@ impl<'c, 'm> Engine<'c, 'm> {
         i0: u16,
         j: u16,
     ) -> Result<(), usize> {
+        // The common case first, in as few instructions as it takes: a
+        // selecting window whose segment the pre-filter rejects whole.
+        let window = &self.memory.open[slot];
+        if window.capacity != 0 && !window.rescan {
+            let floor = window.floor;
+            if floor >= calibrate::FLOOR_NONE
+                || (floor != 0 && !prefilter::any_at_least(raw, floor as u16))
+            {
+                return Ok(());
+            }
+        }
+        self.segment_rest::<S, CHECK>(slot, raw, pixel, i0, j)
+    }
+
+    /// The rest of [`segment`](Self::segment): windows without selection,
+    /// windows awaiting a rescan, and segments with candidates.
+    #[inline(never)]
+    fn segment_rest<S: Steps, const CHECK: bool>(
+        &mut self,
+        slot: usize,
+        raw: &[u16],
+        pixel: usize,
+        i0: u16,
+        j: u16,
+    ) -> Result<(), usize> {
         let memory = &mut self.memory;
         let window = &mut memory.open[slot];
         if window.capacity == 0 {
@@ -391,101 +416,79 @@ impl<'c, 'm> Engine<'c, 'm> {
             };
         }
         let floor = window.floor;
-        if floor != 0
-            && (floor >= calibrate::FLOOR_NONE || !prefilter::any_at_least(raw, floor as u16))
-        {
-            return Ok(());
-        }
-        let calibration = &self.config.calibration;
-        let rule = WindowRule {
-            rule: self.config.selection.rule,
-            n: window.n,
-            pixels: window.pixels(),
-        };
+        let (background, gain, fixed) =
+            calibrate::run_maps(&self.config.calibration, pixel, raw.len());
         let base = window.slot as usize * self.stride;
         let capacity = window.capacity as usize;
-        let mut buffer = Buffer {
-            values: &mut memory.values[base..base + capacity],
-            positions: &mut memory.positions[base..base + capacity],
-            front: window.front as usize,
-            back: window.back as usize,
-            hint: window.hint,
-            hint_ties: window.hint_ties,
-            low: window.low,
-            low_ties: window.low_ties,
-            strict: window.strict,
-        };
+        let values = &mut memory.values[base..base + capacity];
+        let positions = &mut memory.positions[base..base + capacity];
+        let max_raw = self.max_raw;
+        let mut start = 0;
         let mut floor = floor;
-        let mut result = Ok(());
-        'pixels: for (k, &r) in raw.iter().enumerate() {
-            if (r as u32) < floor {
-                continue;
-            }
-            if CHECK && r > self.max_raw {
-                result = Err(k);
-                break;
-            }
-            let p = calibrate::value::<S>(calibration, r, pixel + k);
-            let position = pack(i0 + k as u16, j);
-            loop {
-                if p < buffer.low || (buffer.strict && p == buffer.low) {
-                    continue 'pixels;
-                }
-                if p == buffer.hint {
-                    buffer.hint_ties.add(position);
-                    continue 'pixels;
-                }
-                if p < buffer.hint && p == buffer.low {
-                    buffer.low_ties.add(position);
-                    continue 'pixels;
-                }
-                if buffer.front + buffer.back < capacity {
-                    break;
-                }
-                // Full: drop the back tier if the front proves it useless,
-                // else raise `low` to the cutoff so far; then look again.
-                if buffer.back > 0 && buffer.covers_hint(&rule) {
-                    buffer.drop_back();
+        loop {
+            let mut scan = Scan {
+                hint: window.hint,
+                admit: if window.strict {
+                    window.hint.saturating_add(1)
                 } else {
-                    self.stats.compactions = self.stats.compactions.wrapping_add(1);
-                    if !buffer.compact(&rule, memory.scratch) {
-                        window.rescan = true;
-                        if CHECK {
-                            result =
-                                check_range(&raw[k + 1..], self.max_raw).map_err(|b| k + 1 + b);
-                        }
-                        break 'pixels;
-                    }
-                }
-                floor = admission_floor(calibration, self.max_raw, window.bounds, &buffer);
+                    window.low
+                },
+                front: window.front as usize,
+                back: window.back as usize,
+                at_hint: window.at_hint,
+            };
+            let stop = scan.run::<S, CHECK>(
+                &raw[start..],
+                start,
+                floor,
+                max_raw,
+                background,
+                gain,
+                fixed,
+                i0,
+                j,
+                values,
+                positions,
+            );
+            window.front = scan.front as u16;
+            window.back = scan.back as u16;
+            window.at_hint = scan.at_hint;
+            let (k, p, position) = match stop {
+                Stop::End => break,
+                Stop::OutOfRange(k) => return Err(k),
+                Stop::Full { k, p, position } => (k, p, position),
+            };
+            // Full: drop the back tier if the front proves it useless, else
+            // raise `low` to the cutoff so far; then place the pixel again.
+            self.stats.compactions = self.stats.compactions.wrapping_add(1);
+            if !make_room(window, values, positions, &self.config, memory.scratch) {
+                window.rescan = true;
+                return if CHECK {
+                    check_range(&raw[k + 1..], max_raw).map_err(|b| k + 1 + b)
+                } else {
+                    Ok(())
+                };
             }
-            if p > buffer.hint {
-                buffer.values[buffer.front] = p;
-                buffer.positions[buffer.front] = position;
-                buffer.front += 1;
-            } else {
-                buffer.back += 1;
-                buffer.values[capacity - buffer.back] = p;
-                buffer.positions[capacity - buffer.back] = position;
-            }
+            floor = admission_floor(&self.config.calibration, max_raw, window);
+            window.floor = floor;
+            place(window, values, positions, p, position);
+            start = k + 1;
         }
         // Once the front and hint ties prove the cutoff is at or above the
         // hint, nothing below it can matter, and often no more pixels equal
         // to it: filter the rest of the window harder.
-        if !buffer.strict && buffer.covers_hint(&rule) {
-            buffer.drop_back();
-            buffer.strict = Tiers::hint_ties_settled(rule.rule, rule.n, buffer.front as u16);
-            floor = admission_floor(calibration, self.max_raw, window.bounds, &buffer);
+        if !window.strict && covers(window, &self.config) {
+            window.back = 0;
+            window.low = window.hint;
+            window.low_ties = Ties::NONE;
+            window.strict = Tiers::hint_ties_settled(
+                self.config.selection.rule,
+                window.n,
+                window.front - window.at_hint,
+            );
+            window.floor = admission_floor(&self.config.calibration, max_raw, window);
         }
-        window.front = buffer.front as u16;
-        window.back = buffer.back as u16;
-        window.hint = buffer.hint;
-        window.hint_ties = buffer.hint_ties;
-        window.low = buffer.low;
-        window.low_ties = buffer.low_ties;
-        window.strict = buffer.strict;
-        window.floor = floor;
-        result
+        Ok(())
     }
 
     /// A window's last pixel has arrived: its result, and what it leaves for
@@ -713,6 +716,7 @@ impl<'c, 'm> Engine<'c, 'm> {
                 low,
                 low_ties: Ties::NONE,
                 strict: false,
+                at_hint: 0,
                 floor: raw_floor(&self.config.calibration, state.bounds, low)
                     .min(self.max_raw as u32 + 1),
                 rescan: false,
@@ -733,21 +737,276 @@ impl<'c, 'm> Engine<'c, 'm> {
     }
 }
 
+/// `to.copy_from_slice(from)`, eight pixels at a time when both are
+/// aligned alike (`prefilter::copy_words`), else a pixel at a time (the
+/// library's `memcpy` goes byte by byte on Cortex-M when the two are not
+/// aligned alike).
+#[inline(always)]
+fn copy_pixels(from: &[u16], to: &mut [u16]) {
+    let skew = (from.as_ptr() as usize ^ to.as_ptr() as usize) & 3;
+    if skew != 0 || from.len() < 8 {
+        for (t, f) in to.iter_mut().zip(from) {
+            *t = *f;
+        }
+        return;
+    }
+    // SAFETY: any bits are a u32 and a pair of u16; align_to splits both
+    // slices at the same place, since their addresses agree modulo 4.
+    let (fh, fw, ft) = unsafe { from.align_to::<u32>() };
+    let (th, tw, tt) = unsafe { to.align_to_mut::<u32>() };
+    th.copy_from_slice(fh);
+    prefilter::copy_words(fw, tw);
+    tt.copy_from_slice(ft);
+}
+
+/// Why [`Scan::run`] stopped before the end of its run.
+enum Stop {
+    End,
+    /// The pixel at this offset of the segment is above the bit depth.
+    OutOfRange(usize),
+    /// The buffer is full; the pixel at offset `k` is still to be placed.
+    Full {
+        k: usize,
+        p: i32,
+        position: u16,
+    },
+}
+
+/// The selection state of a window while one of its segments is scanned:
+/// the hot loop's locals. In the scan the tiers are only two: `p >= hint`
+/// goes to the front, `admit <= p < hint` to the back (pixels equal to the
+/// hint or to `low` stay individual entries; only a compaction gathers them
+/// into tie buckets, see `select.rs`).
+struct Scan {
+    hint: i32,
+    /// Smallest value admitted: `low`, or `hint + 1` once admission is strict.
+    admit: i32,
+    front: usize,
+    back: usize,
+    /// Front entries equal to the hint.
+    at_hint: u16,
+}
+
+impl Scan {
+    /// Admits the pixels of `raw` (offsets `start ..` of the segment; the
+    /// maps are the whole segment's, as `calibrate::run_maps` gives them)
+    /// that reach `floor` and calibrate to at least `admit`.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn run<S: Steps, const CHECK: bool>(
+        &mut self,
+        raw: &[u16],
+        start: usize,
+        floor: u32,
+        max_raw: u16,
+        background: &[i32],
+        gain: &[u16],
+        fixed: i32,
+        i0: u16,
+        j: u16,
+        values: &mut [i32],
+        positions: &mut [u16],
+    ) -> Stop {
+        let capacity = values.len().min(positions.len());
+        let segment = background.len().max(gain.len()).max(start + raw.len());
+        debug_assert!(S::BACKGROUND <= (background.len() == segment));
+        debug_assert!(S::GAIN <= (gain.len() == segment));
+        let (hint, admit) = (self.hint, self.admit);
+        let (mut front, mut back, mut at_hint) = (self.front, self.back, self.at_hint);
+        let base = pack(i0, j);
+        let mut stop = Stop::End;
+        // One pixel: r at offset k of the segment (k < its length).
+        macro_rules! pixel {
+            ($out:lifetime, $k:expr, $r:expr) => {{
+                let (k, r) = ($k, $r);
+                if CHECK && r > max_raw {
+                    stop = Stop::OutOfRange(k);
+                    break $out;
+                }
+                let p = calibrate::value_in_run::<S>(r, k, background, gain, fixed);
+                if p >= admit {
+                    let position = base + k as u16;
+                    if front + back == capacity {
+                        stop = Stop::Full { k, p, position };
+                        break $out;
+                    }
+                    // SAFETY: front + back < capacity (just checked), so
+                    // `front` and `capacity - back - 1` index both slices.
+                    unsafe {
+                        if p >= hint {
+                            at_hint += (p == hint) as u16;
+                            *values.get_unchecked_mut(front) = p;
+                            *positions.get_unchecked_mut(front) = position;
+                            front += 1;
+                        } else {
+                            back += 1;
+                            *values.get_unchecked_mut(capacity - back) = p;
+                            *positions.get_unchecked_mut(capacity - back) = position;
+                        }
+                    }
+                }
+            }};
+        }
+        #[allow(clippy::never_loop)]
+        'scan: loop {
+            if floor == 0 {
+                for (k, &r) in raw.iter().enumerate() {
+                    pixel!('scan, start + k, r);
+                }
+                break 'scan;
+            }
+            // floor <= 2^16 - 1 here: a floor of 2^16 skips the segment.
+            let below = (floor - 1) as u16;
+            #[cfg(target_arch = "arm")]
+            {
+                let lanes = below as u32 * 0x0001_0001;
+                // SAFETY: any pair of u16 is a valid u32; align_to only
+                // splits the slice where the words are aligned.
+                let (head, words, tail) = unsafe { raw.align_to::<u32>() };
+                let mut k = start;
+                for &r in head {
+                    if r > below {
+                        pixel!('scan, k, r);
+                    }
+                    k += 1;
+                }
+                let pairs = k;
+                for (w, &word) in words.iter().enumerate() {
+                    if prefilter::uqsub16(word, lanes) != 0 {
+                        let k = pairs + 2 * w;
+                        let (lo, hi) = (word as u16, (word >> 16) as u16);
+                        if lo > below {
+                            pixel!('scan, k, lo);
+                        }
+                        if hi > below {
+                            pixel!('scan, k + 1, hi);
+                        }
+                    }
+                }
+                let mut k = pairs + 2 * words.len();
+                for &r in tail {
+                    if r > below {
+                        pixel!('scan, k, r);
+                    }
+                    k += 1;
+                }
+            }
+            #[cfg(not(target_arch = "arm"))]
+            for (k, &r) in raw.iter().enumerate() {
+                if r > below {
+                    pixel!('scan, start + k, r);
+                }
+            }
+            break 'scan;
+        }
+        self.front = front;
+        self.back = back;
+        self.at_hint = at_hint;
+        stop
+    }
+}
+
 /// The pre-filter's raw floor for a window's admission threshold, lowered
 /// so that a pixel above `max_raw` always passes (see `OpenWindow::floor`).
 #[inline(always)]
-fn admission_floor(
-    calibration: &Calibration<'_>,
-    max_raw: u16,
-    bounds: WindowBounds,
-    buffer: &Buffer<'_>,
-) -> u32 {
-    let admit = if buffer.strict {
-        buffer.low.saturating_add(1)
+fn admission_floor(calibration: &Calibration<'_>, max_raw: u16, window: &OpenWindow) -> u32 {
+    let admit = if window.strict {
+        window.hint.saturating_add(1)
     } else {
-        buffer.low
+        window.low
     };
-    raw_floor(calibration, bounds, admit).min(max_raw as u32 + 1)
+    raw_floor(calibration, window.bounds, admit).min(max_raw as u32 + 1)
+}
+
+/// [`Tiers::covers_hint`] for an open window: its front holds the pixels
+/// above the hint and `at_hint` equal to it, beside its hint ties.
+#[inline(always)]
+fn covers(window: &OpenWindow, config: &Config<'_>) -> bool {
+    Tiers::covers_hint(
+        config.selection.rule,
+        window.n,
+        window.front - window.at_hint,
+        window.hint_ties.count + window.at_hint,
+    )
+}
+
+/// A window's candidate buffer is full: drops its back tier if the front
+/// proves it useless, else compacts it (`select::Buffer::compact`).
+/// `false` if nothing could be dropped.
+#[cold]
+#[inline(never)]
+fn make_room(
+    window: &mut OpenWindow,
+    values: &mut [i32],
+    positions: &mut [u16],
+    config: &Config<'_>,
+    scratch: &mut [i32],
+) -> bool {
+    let rule = WindowRule {
+        rule: config.selection.rule,
+        n: window.n,
+        pixels: window.pixels(),
+    };
+    if window.back > 0 && covers(window, config) {
+        window.back = 0;
+        window.low = window.hint;
+        window.low_ties = Ties::NONE;
+        return true;
+    }
+    let mut buffer = Buffer {
+        values,
+        positions,
+        front: window.front as usize,
+        back: window.back as usize,
+        hint: window.hint,
+        hint_ties: window.hint_ties,
+        low: window.low,
+        low_ties: window.low_ties,
+        strict: window.strict,
+    };
+    if !buffer.compact(&rule, scratch) {
+        return false;
+    }
+    if buffer.hint != window.hint {
+        // The front now holds only values above the new hint.
+        window.at_hint = 0;
+    }
+    window.front = buffer.front as u16;
+    window.back = buffer.back as u16;
+    window.hint = buffer.hint;
+    window.hint_ties = buffer.hint_ties;
+    window.low = buffer.low;
+    window.low_ties = buffer.low_ties;
+    window.strict = buffer.strict;
+    buffer.front + buffer.back < buffer.values.len()
+}
+
+/// Puts an admitted pixel into its tier, after [`make_room`].
+#[cold]
+fn place(
+    window: &mut OpenWindow,
+    values: &mut [i32],
+    positions: &mut [u16],
+    p: i32,
+    position: u16,
+) {
+    let admit = if window.strict {
+        window.hint.saturating_add(1)
+    } else {
+        window.low
+    };
+    let capacity = values.len();
+    if p < admit {
+    } else if p >= window.hint {
+        window.at_hint += (p == window.hint) as u16;
+        values[window.front as usize] = p;
+        positions[window.front as usize] = position;
+        window.front += 1;
+    } else {
+        window.back += 1;
+        values[capacity - window.back as usize] = p;
+        positions[capacity - window.back as usize] = position;
+    }
 }
 
 /// Never used: see `Engine::finish`.

@@ -49,8 +49,10 @@ pub struct OpenWindow {
     pub(crate) n: u16,
     /// Candidate buffer capacity; 0: no selection (every pixel weighs).
     pub(crate) capacity: u16,
-    /// Candidates above the hint, at the buffer's start (`select.rs`).
+    /// Candidates at or above the hint, at the buffer's start (`select.rs`).
     pub(crate) front: u16,
+    /// Front entries equal to the hint (the rest are above it).
+    pub(crate) at_hint: u16,
     /// Candidates between `low` and the hint, at the buffer's end.
     pub(crate) back: u16,
     pub(crate) hint: i32,
@@ -88,6 +90,7 @@ impl OpenWindow {
         n: 0,
         capacity: 0,
         front: 0,
+        at_hint: 0,
         back: 0,
         hint: 0,
         hint_ties: Ties::NONE,

@@ -1,81 +1,413 @@
-//! The baselines the engine is compared with (the host benchmark's, in
-//! `host/benches/engine.rs`, without the heap).
+//! The workloads the benchmark measures, and how one is measured: the engine
+//! and its floors on the same frames, pushed one camera row at a time.
 
-use brightpix_firmware::engine::centroid::{Centroider, Moments};
-use brightpix_firmware::engine::SubapertureResult;
+use brightpix_firmware::engine::calibrate::WindowBounds;
+use brightpix_firmware::engine::centroid::Centroider;
+use brightpix_firmware::engine::{Engine, EngineMemory, EngineStats, SubapertureResult};
+use brightpix_protocol::{
+    Calibration, Camera, Centroid, Config, LevelFilter, PixelCount, Selection, SelectionRule,
+    SubapertureWindow,
+};
 
-use crate::frames::{CANARY_ACROSS, CANARY_WIDTH, SIDE};
+use crate::floor::{read_every_pixel, Floor, FloorMode};
+use crate::frames::{Generator, Grid, Pattern};
+use crate::meter::Meter;
+use crate::sort;
 
-pub const CANARY_WINDOWS: usize = CANARY_ACROSS * CANARY_ACROSS;
-
-/// The memory floor: every pixel read once.
-#[inline(never)]
-pub fn sum_pixels(frame: &[u16]) -> u32 {
-    frame.iter().map(|&p| p as u32).sum()
+/// One measured configuration.
+#[derive(Clone, Copy, Debug)]
+pub struct Workload {
+    /// Its name in the JSON lines.
+    pub name: &'static str,
+    pub grid: Grid,
+    pub pattern: Pattern,
+    pub bit_depth: u8,
+    pub rule: SelectionRule,
+    pub n: u16,
+    pub level_filter: Option<LevelFilter>,
+    /// A background map (50 counts everywhere, as a map: the engine reads it).
+    pub background: bool,
+    /// Frames pushed before measuring (the seeds of a running camera).
+    pub warmup: usize,
+    /// Frames measured.
+    pub frames: usize,
+    /// Also measure the paper's sort per sub-aperture.
+    pub sort: bool,
 }
 
-/// The floor for any selection: centre of gravity of the pixels above a
-/// known threshold, straight from the frame, no selection.
-#[inline(never)]
-pub fn threshold_cog(frame: &[u16], threshold: i32, out: &mut [(i64, i64, i64); CANARY_WINDOWS]) {
-    for sy in 0..CANARY_ACROSS {
-        for sx in 0..CANARY_ACROSS {
-            let (mut f, mut fx, mut fy) = (0i64, 0i64, 0i64);
-            for j in 0..SIDE {
-                let row = &frame[(sy * SIDE + j) * CANARY_WIDTH + sx * SIDE..][..SIDE];
-                for (i, &p) in row.iter().enumerate() {
-                    let w = (p as i32 - threshold).max(0) as i64;
-                    f += w;
-                    fx += w * i as i64;
-                    fy += w * j as i64;
-                }
-            }
-            out[sy * CANARY_ACROSS + sx] = (f, fx, fy);
-        }
+/// The CANARY defaults: 7x7 windows of 16x16, subtract-next N = 20, a
+/// background map, spot frames.
+pub const CANARY: Workload = Workload {
+    name: "canary-subtract-next-n20",
+    grid: Grid {
+        across: 7,
+        side: 16,
+    },
+    pattern: Pattern::Spots,
+    bit_depth: 16,
+    rule: SelectionRule::SubtractNext,
+    n: 20,
+    level_filter: None,
+    background: true,
+    warmup: 8,
+    frames: 8,
+    sort: true,
+};
+
+/// Every workload of the speed issue.
+pub const ALL: &[Workload] = &[
+    CANARY,
+    Workload {
+        name: "canary-threshold-n20",
+        rule: SelectionRule::Threshold,
+        sort: false,
+        ..CANARY
+    },
+    Workload {
+        name: "canary-subtract-next-distinct-n20",
+        rule: SelectionRule::SubtractNextDistinct,
+        sort: false,
+        ..CANARY
+    },
+    Workload {
+        name: "canary-subtract-mean-m4-n20",
+        rule: SelectionRule::SubtractMean { count: 4 },
+        sort: false,
+        ..CANARY
+    },
+    Workload {
+        name: "canary-level-filter-n20",
+        level_filter: Some(LevelFilter { gain_shift: 4 }),
+        sort: false,
+        ..CANARY
+    },
+    Workload {
+        name: "canary-8bit-n20",
+        bit_depth: 8,
+        sort: false,
+        ..CANARY
+    },
+    Workload {
+        name: "canary-n5",
+        n: 5,
+        sort: false,
+        ..CANARY
+    },
+    Workload {
+        name: "canary-n60",
+        n: 60,
+        sort: false,
+        ..CANARY
+    },
+    Workload {
+        name: "canary-n200",
+        n: 200,
+        sort: false,
+        ..CANARY
+    },
+    Workload {
+        name: "canary-no-selection",
+        n: 256,
+        sort: false,
+        ..CANARY
+    },
+    Workload {
+        name: "windows-8x8-n20",
+        grid: Grid {
+            across: 14,
+            side: 8,
+        },
+        sort: false,
+        ..CANARY
+    },
+    Workload {
+        name: "windows-32x32-n20",
+        grid: Grid {
+            across: 4,
+            side: 32,
+        },
+        sort: false,
+        ..CANARY
+    },
+    Workload {
+        name: "ramp-n20",
+        pattern: Pattern::Ramp,
+        sort: false,
+        ..CANARY
+    },
+    Workload {
+        name: "flat-noise-n20",
+        pattern: Pattern::FlatNoise,
+        sort: false,
+        ..CANARY
+    },
+    Workload {
+        name: "all-equal-n20",
+        pattern: Pattern::AllEqual,
+        sort: false,
+        ..CANARY
+    },
+    Workload {
+        name: "elt-800-10x10-n20",
+        grid: Grid {
+            across: 80,
+            side: 10,
+        },
+        background: false,
+        warmup: 1,
+        frames: 1,
+        sort: false,
+        ..CANARY
+    },
+];
+
+/// Largest camera side of the workloads (the ELT-like 800).
+pub const MAX_WIDTH: usize = 800;
+pub const MAX_PIXELS: usize = MAX_WIDTH * MAX_WIDTH;
+/// Largest background map (the 128x128 camera of 32x32 windows).
+pub const MAX_MAP_PIXELS: usize = 128 * 128;
+pub const MAX_WINDOWS: usize = 80 * 80;
+
+/// What one workload measured, in instructions.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Measured {
+    pub pixels: usize,
+    pub frames: usize,
+    pub engine: f64,
+    /// The engine on the final camera row of a frame, mean.
+    pub engine_last_row: f64,
+    pub floor: f64,
+    pub floor_last_row: f64,
+    pub calibrate_all: f64,
+    pub memory: f64,
+    pub sort: Option<f64>,
+    pub sort_last_row: Option<f64>,
+    pub stats: EngineStats,
+}
+
+impl Measured {
+    pub fn per_pixel(&self, instructions: f64) -> f64 {
+        instructions / self.pixels as f64
     }
 }
 
-/// The paper's and DARC's selection in the engine's arithmetic (SPEC.md §2,
-/// §3 subtract-next, §5) for one 16x16 window: calibrate into `i32`, sort a
-/// copy (`sort_unstable`), subtract `v(N+1)`, centre of gravity. `pixels`
-/// (and `background`, if any, laid out the same) start at the window's top
-/// row, `stride` pixels per row; the window starts at column `x`.
-#[inline(never)]
-pub fn sort_window(
-    pixels: &[u16],
-    background: Option<&[i32]>,
-    stride: usize,
-    x: usize,
-    n: usize,
-    centroider: &Centroider<'_>,
-    index: u16,
-) -> SubapertureResult {
-    const PIXELS: usize = SIDE * SIDE;
-    let mut values = [0i32; PIXELS];
-    let mut sorted = [0i32; PIXELS];
-    for j in 0..SIDE {
-        let at = j * stride + x;
-        let raw = &pixels[at..at + SIDE];
-        let row = &mut values[j * SIDE..][..SIDE];
-        match background {
-            Some(b) => {
-                for ((v, &r), &b) in row.iter_mut().zip(raw).zip(&b[at..at + SIDE]) {
-                    *v = ((r as i32) << 4) - b;
+/// Buffers a workload runs in, from statics.
+pub struct Buffers<'b> {
+    pub frame: &'b mut [u16],
+    pub background: &'b mut [i32],
+    pub windows: &'b mut [SubapertureWindow],
+    pub levels: &'b mut [i32],
+    pub bounds: &'b mut [WindowBounds],
+    pub engine_results: &'b mut [SubapertureResult],
+    pub floor_results: &'b mut [SubapertureResult],
+}
+
+/// The results differ where both should be bit-identical.
+#[derive(Debug)]
+pub struct Mismatch {
+    pub what: &'static str,
+    pub index: usize,
+}
+
+pub fn config<'a>(
+    w: &Workload,
+    windows: &'a [SubapertureWindow],
+    background: Option<&'a [i32]>,
+) -> Config<'a> {
+    let width = w.grid.width() as u16;
+    Config {
+        camera: Camera {
+            width,
+            height: width,
+            bit_depth: w.bit_depth,
+        },
+        windows,
+        calibration: Calibration {
+            background,
+            ..Calibration::default()
+        },
+        selection: Selection {
+            rule: w.rule,
+            count: PixelCount::All(w.n),
+            level_filter: w.level_filter,
+        },
+        centroid: Centroid::default(),
+    }
+}
+
+/// Measures `w`: the engine, its floors and, if asked, the sort, on the
+/// same frames. Checks the floor's slopes equal the engine's where they do
+/// the same arithmetic (subtract-next without level filter), and the
+/// sort's.
+pub fn measure(
+    w: &Workload,
+    meter: &Meter,
+    b: &mut Buffers<'_>,
+    memory: EngineMemory<'_>,
+) -> Result<Measured, Mismatch> {
+    let grid = w.grid;
+    let (width, pixels) = (grid.width(), grid.pixels());
+    let windows = &mut b.windows[..grid.windows()];
+    for (k, window) in windows.iter_mut().enumerate() {
+        *window = SubapertureWindow {
+            x: ((k % grid.across) * grid.side) as u16,
+            y: ((k / grid.across) * grid.side) as u16,
+            width: grid.side as u16,
+            height: grid.side as u16,
+        };
+    }
+    let background = if w.background {
+        let map = &mut b.background[..pixels];
+        map.fill(50 * 16);
+        Some(&*map)
+    } else {
+        None
+    };
+    let config = config(w, windows, background);
+    let Ok(mut engine) = Engine::new(config, memory) else {
+        return Err(Mismatch {
+            what: "the engine refused the workload's configuration",
+            index: 0,
+        });
+    };
+    for (bounds, window) in b.bounds.iter_mut().zip(windows.iter()) {
+        *bounds = WindowBounds::of(&config, window);
+    }
+    let centroider = Centroider::new(Centroid::default());
+    let frame = &mut b.frame[..pixels];
+    let mut generator = Generator::new(0x2545_f491_4f6c_dd1d, grid, w.pattern);
+    for _ in 0..w.warmup {
+        generator.frame(frame);
+        for row in frame.chunks_exact(width) {
+            let _ = engine.push(row, &mut |_r: SubapertureResult| {});
+        }
+    }
+    let before = engine.stats();
+    let mut m = Measured {
+        pixels: pixels * w.frames,
+        frames: w.frames,
+        ..Measured::default()
+    };
+    let selects = (w.n as usize) < grid.side * grid.side;
+    for _ in 0..w.frames {
+        generator.frame(frame);
+        sort::levels(frame, background, grid, w.n as usize, b.levels);
+        // The engine.
+        let results = &mut *b.engine_results;
+        for (y, row) in frame.chunks_exact(width).enumerate() {
+            let (count, pushed) = meter.count(|| {
+                engine.push(row, &mut |r: SubapertureResult| {
+                    results[r.index as usize] = r
+                })
+            });
+            if pushed.is_err() {
+                return Err(Mismatch {
+                    what: "the engine refused a generated pixel",
+                    index: y,
+                });
+            }
+            m.engine += count;
+            if y == width - 1 {
+                m.engine_last_row += count / w.frames as f64;
+            }
+        }
+        // The floor, and its slopes against the engine's.
+        let mode = if selects {
+            FloorMode::Skip
+        } else {
+            FloorMode::AllPixels
+        };
+        let mut floor = Floor::new(
+            grid,
+            config.calibration,
+            centroider,
+            mode,
+            b.levels,
+            b.bounds,
+        );
+        let floor_results = &mut *b.floor_results;
+        for (y, row) in frame.chunks_exact(width).enumerate() {
+            let (count, ()) = meter.count(|| {
+                floor.push_row(y, row, &mut |r: SubapertureResult| {
+                    floor_results[r.index as usize] = r
+                })
+            });
+            m.floor += count;
+            if y == width - 1 {
+                m.floor_last_row += count / w.frames as f64;
+            }
+        }
+        let same_arithmetic =
+            (w.rule == SelectionRule::SubtractNext || !selects) && w.level_filter.is_none();
+        if same_arithmetic {
+            if let Some(index) =
+                (0..grid.windows()).find(|&k| b.engine_results[k] != b.floor_results[k])
+            {
+                return Err(Mismatch {
+                    what: "the floor's slopes differ from the engine's",
+                    index,
+                });
+            }
+        }
+        // The floor as first defined: every pixel calibrated.
+        if selects {
+            let mut all = Floor::new(
+                grid,
+                config.calibration,
+                centroider,
+                FloorMode::CalibrateAll,
+                b.levels,
+                b.bounds,
+            );
+            for (y, row) in frame.chunks_exact(width).enumerate() {
+                let (count, ()) =
+                    meter.count(|| all.push_row(y, row, &mut |_r: SubapertureResult| {}));
+                m.calibrate_all += count;
+            }
+        }
+        // Every pixel read once.
+        for row in frame.chunks_exact(width) {
+            let (count, sum) = meter.count(|| read_every_pixel(core::hint::black_box(row)));
+            core::hint::black_box(sum);
+            m.memory += count;
+        }
+        // The paper's method.
+        if w.sort {
+            let sorted = &mut *b.floor_results;
+            let (mut total, mut last) = (0.0, 0.0);
+            for gy in 0..grid.across {
+                let (count, ()) = meter.count(|| {
+                    sort::sort_grid_row(
+                        frame,
+                        background,
+                        grid,
+                        gy,
+                        w.n as usize,
+                        &centroider,
+                        sorted,
+                    )
+                });
+                total += count;
+                if gy == grid.across - 1 {
+                    last = count;
                 }
             }
-            None => {
-                for (v, &r) in row.iter_mut().zip(raw) {
-                    *v = (r as i32) << 4;
-                }
+            *m.sort.get_or_insert(0.0) += total;
+            *m.sort_last_row.get_or_insert(0.0) += last / w.frames as f64;
+            if let Some(index) = (0..grid.windows()).find(|&k| b.engine_results[k] != sorted[k]) {
+                return Err(Mismatch {
+                    what: "the sort's slopes differ from the engine's",
+                    index,
+                });
             }
         }
     }
-    sorted.copy_from_slice(&values);
-    sorted.sort_unstable();
-    let level = sorted[PIXELS - 1 - n];
-    let mut moments = Moments::ZERO;
-    for (k, &p) in values.iter().enumerate() {
-        moments.add((p - level).max(0), (k % SIDE) as u16, (k / SIDE) as u16);
-    }
-    centroider.result(index, moments, SIDE as u16, SIDE as u16)
+    let after = engine.stats();
+    m.stats = EngineStats {
+        windows: after.windows - before.windows,
+        candidates: after.candidates - before.candidates,
+        compactions: after.compactions - before.compactions,
+        rescans: after.rescans - before.rescans,
+    };
+    Ok(m)
 }

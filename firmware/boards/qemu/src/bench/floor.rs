@@ -1,0 +1,203 @@
+//! The floors the engine is measured against: the work no selection can
+//! avoid, done the tightest way we can write it, on the pixels as the
+//! engine gets them (camera rows pushed one at a time).
+//!
+//! - [`read_every_pixel`]: the memory floor, every pixel read once.
+//! - [`Floor`] with [`FloorMode::Skip`]: **the floor**. A streaming centre of
+//!   gravity above a *known* level per window (the `v(N+1)` the engine has to
+//!   find, handed to it): background map in 1/16 count, weights `p - L` above
+//!   `L`, the three sums, and the same pre-filter as the engine (a row
+//!   segment whose raw pixels cannot reach `L` is skipped uncalibrated,
+//!   `engine::prefilter`, UQSUB16 on Cortex-M). Its slopes are the engine's
+//!   subtract-next slopes, bit for bit, which the benchmark checks: it does
+//!   the same work, less finding `L`.
+//! - [`FloorMode::CalibrateAll`]: the same without the pre-filter (every
+//!   pixel calibrated), the floor as first defined in the speed issue.
+//! - [`FloorMode::AllPixels`]: every pixel weighs its value (the engine's
+//!   `N >= n`).
+
+use brightpix_firmware::engine::calibrate::{raw_floor, WindowBounds, FLOOR_NONE};
+use brightpix_firmware::engine::centroid::{Centroider, Moments};
+use brightpix_firmware::engine::prefilter::any_at_least;
+use brightpix_firmware::engine::SubapertureResult;
+use brightpix_protocol::Calibration;
+
+use crate::frames::Grid;
+
+/// The memory floor: the sum of a row's pixels, reading each once. On
+/// Cortex-M, eight at a time with `LDM` and `UXTAH` (the loop the issue
+/// measured); the portable sum is its twin.
+#[inline(never)]
+pub fn read_every_pixel(row: &[u16]) -> u32 {
+    #[cfg(target_arch = "arm")]
+    {
+        // SAFETY: align_to only splits at aligned words; any bits are a u32.
+        let (head, words, tail) = unsafe { row.align_to::<u32>() };
+        let mut sum: u32 = head.iter().chain(tail).map(|&p| p as u32).sum();
+        let quads = words.len() / 4;
+        if quads > 0 {
+            // SAFETY: reads exactly `quads * 4` words from `words`, which
+            // holds at least that many; r2-r5 are declared clobbered.
+            unsafe {
+                core::arch::asm!(
+                    "2:",
+                    "ldm {p}!, {{r2, r3, r4, r5}}",
+                    "uxtah {s}, {s}, r2",
+                    "uxtah {s}, {s}, r2, ror #16",
+                    "uxtah {s}, {s}, r3",
+                    "uxtah {s}, {s}, r3, ror #16",
+                    "uxtah {s}, {s}, r4",
+                    "uxtah {s}, {s}, r4, ror #16",
+                    "uxtah {s}, {s}, r5",
+                    "uxtah {s}, {s}, r5, ror #16",
+                    "subs {n}, {n}, #1",
+                    "bne 2b",
+                    p = inout(reg) words.as_ptr() => _,
+                    n = inout(reg) quads => _,
+                    s = inout(reg) sum,
+                    out("r2") _, out("r3") _, out("r4") _, out("r5") _,
+                    options(readonly, nostack),
+                );
+            }
+        }
+        for &w in &words[quads * 4..] {
+            sum = sum.wrapping_add(w & 0xffff).wrapping_add(w >> 16);
+        }
+        sum
+    }
+    #[cfg(not(target_arch = "arm"))]
+    {
+        read_every_pixel_portable(row)
+    }
+}
+
+/// The twin of [`read_every_pixel`].
+pub fn read_every_pixel_portable(row: &[u16]) -> u32 {
+    row.iter().fold(0u32, |s, &p| s.wrapping_add(p as u32))
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FloorMode {
+    Skip,
+    CalibrateAll,
+    AllPixels,
+}
+
+/// Windows of one grid row, at most.
+const MAX_ACROSS: usize = 128;
+
+/// A streaming centre of gravity over a regular grid with known levels.
+pub struct Floor<'a> {
+    grid: Grid,
+    calibration: Calibration<'a>,
+    centroider: Centroider<'a>,
+    mode: FloorMode,
+    /// Per window (row-major grid order): the level `L`, weights `p - L`
+    /// above it.
+    levels: &'a [i32],
+    /// Per window: the map bounds, as the engine keeps them.
+    bounds: &'a [WindowBounds],
+    sums: [Moments; MAX_ACROSS],
+    floors: [u32; MAX_ACROSS],
+}
+
+impl<'a> Floor<'a> {
+    pub fn new(
+        grid: Grid,
+        calibration: Calibration<'a>,
+        centroider: Centroider<'a>,
+        mode: FloorMode,
+        levels: &'a [i32],
+        bounds: &'a [WindowBounds],
+    ) -> Self {
+        assert!(grid.across <= MAX_ACROSS);
+        Floor {
+            grid,
+            calibration,
+            centroider,
+            mode,
+            levels,
+            bounds,
+            sums: [Moments::ZERO; MAX_ACROSS],
+            floors: [0; MAX_ACROSS],
+        }
+    }
+
+    /// Camera row `y`; emits each window's result after its last row.
+    #[inline(never)]
+    pub fn push_row(&mut self, y: usize, row: &[u16], out: &mut impl FnMut(SubapertureResult)) {
+        let (across, side, width) = (self.grid.across, self.grid.side, self.grid.width());
+        let (gy, j) = (y / side, y % side);
+        let first = gy * across;
+        if j == 0 {
+            for sx in 0..across {
+                self.sums[sx] = Moments::ZERO;
+                let level = self.levels[first + sx];
+                // Strictly above L: the raw floor of L + 1.
+                self.floors[sx] = raw_floor(
+                    &self.calibration,
+                    self.bounds[first + sx],
+                    level.saturating_add(1),
+                );
+            }
+        }
+        let background = self.calibration.background;
+        for sx in 0..across {
+            let segment = &row[sx * side..][..side];
+            let pixel = y * width + sx * side;
+            let level = self.levels[first + sx];
+            // A segment's flux fits 32 bits (at most 64 weights below 2^22);
+            // its first moment needs 64 (SMLAL on Cortex-M, one instruction).
+            let (mut f, mut fi) = (0i32, 0i64);
+            match self.mode {
+                FloorMode::Skip => {
+                    let floor = self.floors[sx];
+                    if floor != 0 && (floor >= FLOOR_NONE || !any_at_least(segment, floor as u16)) {
+                        continue;
+                    }
+                    for (i, &r) in segment.iter().enumerate() {
+                        if (r as u32) < floor {
+                            continue;
+                        }
+                        let b = background.map_or(0, |b| b[pixel + i]);
+                        let w = ((r as i32) << 4) - b - level;
+                        if w > 0 {
+                            f += w;
+                            fi += w as i64 * i as i64;
+                        }
+                    }
+                }
+                FloorMode::CalibrateAll => {
+                    for (i, &r) in segment.iter().enumerate() {
+                        let b = background.map_or(0, |b| b[pixel + i]);
+                        let w = (((r as i32) << 4) - b - level).max(0);
+                        f += w;
+                        fi += w as i64 * i as i64;
+                    }
+                }
+                FloorMode::AllPixels => {
+                    let sums = &mut self.sums[sx];
+                    for (i, &r) in segment.iter().enumerate() {
+                        let b = background.map_or(0, |b| b[pixel + i]);
+                        sums.add(((r as i32) << 4) - b, i as u16, j as u16);
+                    }
+                    continue;
+                }
+            }
+            let sums = &mut self.sums[sx];
+            sums.sum_w += f as i64;
+            sums.sum_wi += fi;
+            sums.sum_wj += j as i64 * f as i64;
+        }
+        if j == side - 1 {
+            for sx in 0..across {
+                out(self.centroider.result(
+                    (first + sx) as u16,
+                    self.sums[sx],
+                    side as u16,
+                    side as u16,
+                ));
+            }
+        }
+    }
+}
