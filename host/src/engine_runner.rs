@@ -5,6 +5,7 @@
 //! [`HostEngine`] runs on one core; [`crate::parallel::ParallelEngine`] runs
 //! a batch of frames on all cores with bit-identical results.
 
+use brightpix_firmware::engine::select::Entry;
 use brightpix_firmware::engine::{
     Engine, EngineMemory, FrameError, MemorySize, OpenWindow, OutputSink, SubapertureResult,
     SubapertureState,
@@ -19,11 +20,10 @@ pub struct EngineBuffers {
     open: Vec<OpenWindow>,
     active: Vec<u16>,
     free: Vec<u16>,
-    values: Vec<i32>,
-    positions: Vec<u16>,
+    entries: Vec<Entry>,
     history: Vec<u16>,
     scratch: Vec<i32>,
-    scratch_positions: Vec<u16>,
+    rescan: Vec<Entry>,
 }
 
 impl EngineBuffers {
@@ -55,11 +55,10 @@ impl EngineBuffers {
             open: vec![OpenWindow::CLOSED; size.open_windows],
             active: vec![0; size.open_windows],
             free: vec![0; size.open_windows],
-            values: vec![0; size.pool_entries],
-            positions: vec![0; size.pool_entries],
+            entries: vec![Entry::ZERO; size.pool_entries],
             history: vec![0; size.history_pixels],
-            scratch: vec![0; 2 * size.scratch_entries],
-            scratch_positions: vec![0; size.scratch_entries],
+            scratch: vec![0; size.scratch_entries],
+            rescan: vec![Entry::ZERO; size.scratch_entries],
         }
     }
 
@@ -89,11 +88,10 @@ impl EngineBuffers {
             open: &mut self.open,
             active: &mut self.active,
             free: &mut self.free,
-            values: &mut self.values,
-            positions: &mut self.positions,
+            entries: &mut self.entries,
             history: &mut self.history,
             scratch: &mut self.scratch,
-            scratch_positions: &mut self.scratch_positions,
+            rescan: &mut self.rescan,
         }
     }
 }

@@ -1101,11 +1101,10 @@ fn reborrow<'a>(memory: &'a mut EngineMemory<'_>) -> EngineMemory<'a> {
         open: memory.open,
         active: memory.active,
         free: memory.free,
-        values: memory.values,
-        positions: memory.positions,
+        entries: memory.entries,
         history: memory.history,
         scratch: memory.scratch,
-        scratch_positions: memory.scratch_positions,
+        rescan: memory.rescan,
     }
 }
 

@@ -163,6 +163,34 @@ pub fn value_in_run<S: Steps>(
     d
 }
 
+/// [`value_in_run`] without bounds checks, for the engine's hot loop.
+///
+/// # Safety
+/// `k < background.len()` if `S::BACKGROUND`, `k < gain.len()` if `S::GAIN`.
+#[inline(always)]
+pub unsafe fn value_in_run_unchecked<S: Steps>(
+    r: u16,
+    k: usize,
+    background: &[i32],
+    gain: &[u16],
+    threshold: i32,
+) -> i32 {
+    let mut d = (r as i32) << 4;
+    if S::BACKGROUND {
+        // SAFETY: the caller's contract.
+        d -= unsafe { *background.get_unchecked(k) };
+    }
+    if S::GAIN {
+        // SAFETY: the caller's contract.
+        let g = unsafe { *gain.get_unchecked(k) };
+        d = ((d as i64 * g as i64) >> GAIN_FRACTION_BITS) as i32;
+    }
+    if S::THRESHOLD && d < threshold {
+        d = 0;
+    }
+    d
+}
+
 /// A run's slices of the maps (empty where a map is absent) and the fixed
 /// threshold (`i32::MIN` if absent), for [`value_in_run`].
 #[inline(always)]

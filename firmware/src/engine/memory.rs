@@ -6,13 +6,13 @@
 //! - per simultaneously open window (a window is open from its first row to
 //!   its last, so a regular grid has one grid row of windows open):
 //!   `size_of::<OpenWindow>()` + 4 bytes (active list, free list);
-//! - per open window, a candidate buffer of `stride` entries of 6 bytes
+//! - per open window, a candidate buffer of `stride` entries of 8 bytes
 //!   (value + position), `stride` the largest `select::buffer_capacity`
 //!   over the windows (about `2 (N + 1) + 32`; 0 without selection);
 //! - a row history: the last `H` camera rows, `H` the tallest window that
 //!   selects, 2 bytes per pixel, from which a window is rescanned when its
 //!   seed left out a pixel it needed;
-//! - scratch for the selection and a rescan: 10 bytes per pixel of the
+//! - scratch for the selection and a rescan: 12 bytes per pixel of the
 //!   largest window that selects (at least `stride`).
 //!
 //! E.g. CANARY (112x112, 7x7 windows of 16x16, subtract-next N = 20):
@@ -21,6 +21,7 @@
 //! windows (6400 sub-apertures, ELT class): 80 open windows, 80 x 74
 //! entries (35 KiB), 16 x 1280 history pixels (40 KiB).
 
+use super::select::Entry;
 use super::window::{OpenWindow, SubapertureState};
 
 /// Borrowed storage for an [`Engine`](super::Engine).
@@ -35,16 +36,14 @@ pub struct EngineMemory<'m> {
     pub active: &'m mut [u16],
     /// Same length as `open`.
     pub free: &'m mut [u16],
-    /// Candidate buffers: values.
-    pub values: &'m mut [i32],
-    /// Same length as `values`: positions.
-    pub positions: &'m mut [u16],
+    /// Candidate buffers.
+    pub entries: &'m mut [Entry],
     /// The last camera rows, row-major.
     pub history: &'m mut [u16],
-    /// Scratch values, twice the scratch entries.
+    /// Scratch values for selections.
     pub scratch: &'m mut [i32],
-    /// Scratch positions, one per scratch entry.
-    pub scratch_positions: &'m mut [u16],
+    /// Scratch entries for a rescan, as many as `scratch`.
+    pub rescan: &'m mut [Entry],
 }
 
 impl EngineMemory<'_> {
@@ -53,9 +52,9 @@ impl EngineMemory<'_> {
         MemorySize {
             subapertures: self.order.len().min(self.subapertures.len()),
             open_windows: self.open.len().min(self.active.len()).min(self.free.len()),
-            pool_entries: self.values.len().min(self.positions.len()),
+            pool_entries: self.entries.len(),
             history_pixels: self.history.len(),
-            scratch_entries: (self.scratch.len() / 2).min(self.scratch_positions.len()),
+            scratch_entries: self.scratch.len().min(self.rescan.len()),
         }
     }
 }
@@ -75,9 +74,9 @@ impl MemorySize {
     pub const fn bytes(&self) -> usize {
         self.subapertures * (2 + core::mem::size_of::<SubapertureState>())
             + self.open_windows * (core::mem::size_of::<OpenWindow>() + 4)
-            + self.pool_entries * 6
+            + self.pool_entries * 8
             + self.history_pixels * 2
-            + self.scratch_entries * 10
+            + self.scratch_entries * 12
     }
 }
 
@@ -96,11 +95,10 @@ pub struct StaticEngineMemory<
     open: [OpenWindow; OPEN],
     active: [u16; OPEN],
     free: [u16; OPEN],
-    values: [i32; ENTRIES],
-    positions: [u16; ENTRIES],
+    entries: [Entry; ENTRIES],
     history: [u16; HISTORY],
-    scratch: [[i32; 2]; SCRATCH],
-    scratch_positions: [u16; SCRATCH],
+    scratch: [i32; SCRATCH],
+    rescan: [Entry; SCRATCH],
 }
 
 impl<
@@ -131,11 +129,10 @@ impl<
             open: [OpenWindow::CLOSED; OPEN],
             active: [0; OPEN],
             free: [0; OPEN],
-            values: [0; ENTRIES],
-            positions: [0; ENTRIES],
+            entries: [Entry::ZERO; ENTRIES],
             history: [0; HISTORY],
-            scratch: [[0; 2]; SCRATCH],
-            scratch_positions: [0; SCRATCH],
+            scratch: [0; SCRATCH],
+            rescan: [Entry::ZERO; SCRATCH],
         }
     }
 
@@ -146,11 +143,10 @@ impl<
             open: &mut self.open,
             active: &mut self.active,
             free: &mut self.free,
-            values: &mut self.values,
-            positions: &mut self.positions,
+            entries: &mut self.entries,
             history: &mut self.history,
-            scratch: self.scratch.as_flattened_mut(),
-            scratch_positions: &mut self.scratch_positions,
+            scratch: &mut self.scratch,
+            rescan: &mut self.rescan,
         }
     }
 }

@@ -63,6 +63,22 @@ fn row(position: u16) -> u16 {
     position >> COLUMN_BITS
 }
 
+/// A candidate: its calibrated value and packed window position, side by
+/// side so that one store (`STRD` on Cortex-M) keeps both.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[repr(C)]
+pub struct Entry {
+    pub value: i32,
+    pub position: u32,
+}
+
+impl Entry {
+    pub const ZERO: Entry = Entry {
+        value: 0,
+        position: 0,
+    };
+}
+
 /// The selection parameters of one window.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct WindowRule {
@@ -154,10 +170,12 @@ pub struct TooShallow;
 /// `front` values `> hint`, `hint_ties` copies of `hint`, `back` values in
 /// `(low, hint)`, `low_ties` copies of `low` (`low < hint`, or no low ties).
 pub struct Tiers<'a> {
-    pub front: &'a [i32],
+    pub front: &'a [Entry],
+    /// Entries of `front` equal to the hint (the others are above it).
+    pub front_at_hint: u16,
     pub hint: i32,
     pub hint_ties: u16,
-    pub back: &'a [i32],
+    pub back: &'a [Entry],
     pub low: i32,
     pub low_ties: u16,
     /// No pixel of the window was left out: the tiers are all of it.
@@ -201,10 +219,23 @@ impl Tiers<'_> {
     /// The k-th largest candidate (1-based), duplicates counted.
     fn kth_largest(&mut self, k: usize) -> Result<i32, TooShallow> {
         let front = self.front.len();
+        let above = front - self.front_at_hint as usize;
         let hint = front + self.hint_ties as usize;
         let back = hint + self.back.len();
-        if k <= front {
-            Ok(kth_largest(self.front, k, self.scratch))
+        if k <= above {
+            if self.front_at_hint == 0 {
+                Ok(kth_largest(self.front, k, self.scratch))
+            } else {
+                // Among the front's values above the hint.
+                let mut len = 0;
+                for e in self.front {
+                    if e.value > self.hint {
+                        self.scratch[len] = e.value;
+                        len += 1;
+                    }
+                }
+                Ok(kth_largest_in_place(&mut self.scratch[..len], k))
+            }
         } else if k <= hint {
             Ok(self.hint)
         } else if k <= back {
@@ -218,7 +249,7 @@ impl Tiers<'_> {
 
     /// The largest candidate strictly below `v`.
     fn largest_below(&self, v: i32) -> Option<i32> {
-        let below = |values: &[i32]| values.iter().copied().filter(|&x| x < v).max();
+        let below = |entries: &[Entry]| entries.iter().map(|e| e.value).filter(|&x| x < v).max();
         below(self.front)
             .or((self.hint_ties > 0 && self.hint < v).then_some(self.hint))
             .or_else(|| below(self.back))
@@ -255,10 +286,10 @@ struct Top {
 }
 
 impl Top {
-    fn values(&mut self, values: &[i32], scratch: &mut [i32]) {
+    fn values(&mut self, entries: &[Entry], scratch: &mut [i32]) {
         // The values below v, copied.
         let mut len = 0;
-        for &x in values {
+        for x in entries.iter().map(|e| e.value) {
             if x < self.v {
                 scratch[len] = x;
                 len += 1;
@@ -291,18 +322,22 @@ impl Top {
     }
 }
 
-/// The k-th largest of `values` (1-based, `k <= len`).
+/// The k-th largest value of `entries` (1-based, `k <= len`).
 ///
 /// Near either end (the usual case: the cutoff is close to the hint) by one
 /// pass that keeps the few extreme values in a small sorted array; else by
 /// `select_nth_unstable` on a copy in `scratch` (at least `len` entries).
-pub fn kth_largest(values: &[i32], k: usize, scratch: &mut [i32]) -> i32 {
-    let len = values.len();
-    if k <= NEAR || len - k < NEAR {
-        kth_largest_near_ends(values, k)
+pub fn kth_largest(entries: &[Entry], k: usize, scratch: &mut [i32]) -> i32 {
+    let len = entries.len();
+    if k <= NEAR {
+        extreme::<true>(entries.iter().map(|e| e.value), k)
+    } else if len - k < NEAR {
+        extreme::<false>(entries.iter().map(|e| e.value), len - k + 1)
     } else {
         let copy = &mut scratch[..len];
-        copy.copy_from_slice(values);
+        for (c, e) in copy.iter_mut().zip(entries) {
+            *c = e.value;
+        }
         *copy.select_nth_unstable(len - k).1
     }
 }
@@ -323,20 +358,20 @@ const NEAR: usize = 8;
 
 fn kth_largest_near_ends(values: &[i32], k: usize) -> i32 {
     if k <= NEAR {
-        extreme::<true>(values, k)
+        extreme::<true>(values.iter().copied(), k)
     } else {
-        extreme::<false>(values, values.len() - k + 1)
+        extreme::<false>(values.iter().copied(), values.len() - k + 1)
     }
 }
 
 /// The m-th largest (`LARGEST`) or smallest of `values`, `1 <= m <= 8`.
-#[inline(never)]
-fn extreme<const LARGEST: bool>(values: &[i32], m: usize) -> i32 {
+#[inline(always)]
+fn extreme<const LARGEST: bool>(values: impl Iterator<Item = i32>, m: usize) -> i32 {
     // best[..filled] sorted from most to least extreme.
     let mut best = [0i32; 8];
     let mut filled = 0usize;
     let beats = |a: i32, b: i32| if LARGEST { a > b } else { a < b };
-    for &x in values {
+    for x in values {
         if filled == m {
             if !beats(x, best[m - 1]) {
                 continue;
@@ -415,29 +450,23 @@ pub fn cut(rule: &WindowRule, c: &mut Tiers<'_>) -> Result<Cut, TooShallow> {
 }
 
 /// The weights of `cut` (with `level`, the filtered level, for subtracting
-/// rules) reduced to centre-of-gravity moments over candidates: `values`
-/// with `positions`, and `ties` copies of `value`.
+/// rules) reduced to centre-of-gravity moments over candidates.
 #[inline(always)]
-pub fn add_moments(
-    moments: &mut Moments,
-    cut: &Cut,
-    level: Option<i32>,
-    values: &[i32],
-    positions: &[u16],
-) {
-    let positions = &positions[..values.len()];
+pub fn add_moments(moments: &mut Moments, cut: &Cut, level: Option<i32>, entries: &[Entry]) {
     match level {
         Some(level) => {
-            for (&p, &position) in values.iter().zip(positions) {
-                if cut.keeps(p) {
-                    moments.add((p - level).max(0), column(position), row(position));
+            for e in entries {
+                if cut.keeps(e.value) {
+                    let position = e.position as u16;
+                    moments.add((e.value - level).max(0), column(position), row(position));
                 }
             }
         }
         None => {
-            for (&p, &position) in values.iter().zip(positions) {
-                if cut.keeps(p) {
-                    moments.add(p, column(position), row(position));
+            for e in entries {
+                if cut.keeps(e.value) {
+                    let position = e.position as u16;
+                    moments.add(e.value, column(position), row(position));
                 }
             }
         }
@@ -465,9 +494,10 @@ pub fn add_tie_moments(
 /// A window's candidate buffer and tie buckets, as the engine keeps them.
 pub struct Buffer<'a> {
     /// The whole buffer: front at `[..front]`, back at `[len - back..]`.
-    pub values: &'a mut [i32],
-    pub positions: &'a mut [u16],
+    pub entries: &'a mut [Entry],
     pub front: usize,
+    /// Front entries equal to the hint.
+    pub at_hint: u16,
     pub back: usize,
     pub hint: i32,
     pub hint_ties: Ties,
@@ -491,7 +521,12 @@ impl Buffer<'_> {
     /// [`Tiers::covers_hint`]: whether nothing below the hint matters.
     #[inline(always)]
     pub fn covers_hint(&self, rule: &WindowRule) -> bool {
-        Tiers::covers_hint(rule.rule, rule.n, self.front as u16, self.hint_ties.count)
+        Tiers::covers_hint(
+            rule.rule,
+            rule.n,
+            self.front as u16 - self.at_hint,
+            self.hint_ties.count + self.at_hint,
+        )
     }
 
     /// A full buffer: raises `low` to the cutoff of the candidates so far,
@@ -499,13 +534,14 @@ impl Buffer<'_> {
     /// dropped (the window then needs a rescan). `scratch` holds at least
     /// the buffer's length.
     pub fn compact(&mut self, rule: &WindowRule, scratch: &mut [i32]) -> bool {
-        let capacity = self.values.len();
+        let capacity = self.entries.len();
         let (front, back) = (self.front, self.back);
         let mut tiers = Tiers {
-            front: &self.values[..front],
+            front: &self.entries[..front],
+            front_at_hint: self.at_hint,
             hint: self.hint,
             hint_ties: self.hint_ties.count,
-            back: &self.values[capacity - back..],
+            back: &self.entries[capacity - back..],
             low: self.low,
             low_ties: self.low_ties.count,
             complete: false,
@@ -524,16 +560,16 @@ impl Buffer<'_> {
             };
             let mut kept = 0;
             for k in 0..front {
-                let (p, position) = (self.values[k], self.positions[k]);
-                if p > cutoff {
-                    self.values[kept] = p;
-                    self.positions[kept] = position;
+                let e = self.entries[k];
+                if e.value > cutoff {
+                    self.entries[kept] = e;
                     kept += 1;
-                } else if p == cutoff {
-                    ties.add(position);
+                } else if e.value == cutoff {
+                    ties.add(e.position as u16);
                 }
             }
             self.front = kept;
+            self.at_hint = 0;
             self.back = 0;
             self.strict = false;
             self.hint = cutoff;
@@ -546,13 +582,12 @@ impl Buffer<'_> {
             let mut ties = Ties::NONE;
             let mut kept = 0;
             for k in (capacity - back..capacity).rev() {
-                let (p, position) = (self.values[k], self.positions[k]);
-                if p > cutoff {
-                    self.values[capacity - 1 - kept] = p;
-                    self.positions[capacity - 1 - kept] = position;
+                let e = self.entries[k];
+                if e.value > cutoff {
+                    self.entries[capacity - 1 - kept] = e;
                     kept += 1;
-                } else if p == cutoff {
-                    ties.add(position);
+                } else if e.value == cutoff {
+                    ties.add(e.position as u16);
                 }
             }
             self.back = kept;

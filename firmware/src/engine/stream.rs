@@ -20,7 +20,7 @@ use super::calibrate::{self, raw_floor, Calibrator, Steps, WindowBounds, With};
 use super::centroid::{Centroider, Moments, SubapertureResult};
 use super::memory::{EngineMemory, MemorySize};
 use super::prefilter;
-use super::select::{self, buffer_capacity, pack, Buffer, Cut, Tiers, Ties, WindowRule};
+use super::select::{self, buffer_capacity, pack, Buffer, Cut, Entry, Tiers, Ties, WindowRule};
 use super::window::{OpenWindow, SubapertureState};
 use brightpix_protocol::{
     Calibration, Config, ConfigError, MemoryKind, SubapertureWindow, MAX_WINDOW_SIDE,
@@ -415,53 +415,32 @@ impl<'c, 'm> Engine<'c, 'm> {
                 Ok(())
             };
         }
-        let floor = window.floor;
         let (background, gain, fixed) =
             calibrate::run_maps(&self.config.calibration, pixel, raw.len());
         let base = window.slot as usize * self.stride;
         let capacity = window.capacity as usize;
-        let values = &mut memory.values[base..base + capacity];
-        let positions = &mut memory.positions[base..base + capacity];
+        let entries = &mut memory.entries[base..base + capacity];
         let max_raw = self.max_raw;
         let mut start = 0;
-        let mut floor = floor;
         loop {
-            let mut scan = Scan {
-                hint: window.hint,
-                admit: if window.strict {
-                    window.hint.saturating_add(1)
-                } else {
-                    window.low
-                },
-                front: window.front as usize,
-                back: window.back as usize,
-                at_hint: window.at_hint,
-            };
-            let stop = scan.run::<S, CHECK>(
-                &raw[start..],
+            let segment = Segment {
+                raw: &raw[start..],
                 start,
-                floor,
-                max_raw,
                 background,
                 gain,
                 fixed,
-                i0,
-                j,
-                values,
-                positions,
-            );
-            window.front = scan.front as u16;
-            window.back = scan.back as u16;
-            window.at_hint = scan.at_hint;
-            let (k, p, position) = match stop {
+                base: pack(i0, j),
+                max_raw,
+            };
+            let (k, entry) = match scan::<S, CHECK>(window, entries, &segment) {
                 Stop::End => break,
                 Stop::OutOfRange(k) => return Err(k),
-                Stop::Full { k, p, position } => (k, p, position),
+                Stop::Full { k, entry } => (k, entry),
             };
             // Full: drop the back tier if the front proves it useless, else
             // raise `low` to the cutoff so far; then place the pixel again.
             self.stats.compactions = self.stats.compactions.wrapping_add(1);
-            if !make_room(window, values, positions, &self.config, memory.scratch) {
+            if !make_room(window, entries, &self.config, memory.scratch) {
                 window.rescan = true;
                 return if CHECK {
                     check_range(&raw[k + 1..], max_raw).map_err(|b| k + 1 + b)
@@ -469,9 +448,8 @@ impl<'c, 'm> Engine<'c, 'm> {
                     Ok(())
                 };
             }
-            floor = admission_floor(&self.config.calibration, max_raw, window);
-            window.floor = floor;
-            place(window, values, positions, p, position);
+            window.floor = admission_floor(&self.config.calibration, max_raw, window);
+            place(window, entries, entry);
             start = k + 1;
         }
         // Once the front and hint ties prove the cutoff is at or above the
@@ -510,8 +488,7 @@ impl<'c, 'm> Engine<'c, 'm> {
             let base = window.slot as usize * self.stride;
             let capacity = window.capacity as usize;
             let (front, back) = (window.front as usize, window.back as usize);
-            let values = &memory.values[base..base + capacity];
-            let positions = &memory.positions[base..base + capacity];
+            let entries = &memory.entries[base..base + capacity];
             let filter = self.config.selection.level_filter;
             let level = |cut: &Cut, state: &mut SubapertureState| match filter {
                 Some(f) => state.level.update(cut.level, f.gain_shift),
@@ -526,10 +503,11 @@ impl<'c, 'm> Engine<'c, 'm> {
                 None
             } else {
                 let mut tiers = Tiers {
-                    front: &values[..front],
+                    front: &entries[..front],
+                    front_at_hint: window.at_hint,
                     hint: window.hint,
                     hint_ties: window.hint_ties.count,
-                    back: &values[capacity - back..],
+                    back: &entries[capacity - back..],
                     low: window.low,
                     low_ties: window.low_ties.count,
                     complete: held == rule.pixels as usize,
@@ -544,7 +522,7 @@ impl<'c, 'm> Engine<'c, 'm> {
                     let level = level(&cut, state);
                     state.seed.observe(cut.cutoff, false);
                     let mut moments = Moments::ZERO;
-                    select::add_moments(&mut moments, &cut, level, &values[..front], positions);
+                    select::add_moments(&mut moments, &cut, level, &entries[..front]);
                     select::add_tie_moments(
                         &mut moments,
                         &cut,
@@ -554,13 +532,7 @@ impl<'c, 'm> Engine<'c, 'm> {
                     );
                     if cut.bound < window.hint {
                         let at = capacity - back;
-                        select::add_moments(
-                            &mut moments,
-                            &cut,
-                            level,
-                            &values[at..],
-                            &positions[at..],
-                        );
+                        select::add_moments(&mut moments, &cut, level, &entries[at..]);
                         select::add_tie_moments(
                             &mut moments,
                             &cut,
@@ -574,32 +546,39 @@ impl<'c, 'm> Engine<'c, 'm> {
                 None => {
                     self.stats.rescans = self.stats.rescans.wrapping_add(1);
                     let pixels = rule.pixels as usize;
-                    let (values, copy) = memory.scratch.split_at_mut(pixels);
-                    let positions = &mut memory.scratch_positions[..pixels];
+                    let all = &mut memory.rescan[..pixels];
                     let width = self.config.camera.width as usize;
                     let w = window.width as usize;
                     for j in 0..window.height as usize {
                         let y = window.y as usize + j;
                         let at = (y % self.history_rows) * width + window.x as usize;
-                        let row = &mut values[j * w..(j + 1) * w];
+                        let row = &mut self.calibrated[..w];
                         self.calibrator.calibrate(
                             &memory.history[at..at + w],
                             y * width + window.x as usize,
                             row,
                         );
-                        for (i, p) in positions[j * w..(j + 1) * w].iter_mut().enumerate() {
-                            *p = pack(i as u16, j as u16);
+                        for (i, (e, &p)) in all[j * w..(j + 1) * w]
+                            .iter_mut()
+                            .zip(row.iter())
+                            .enumerate()
+                        {
+                            *e = Entry {
+                                value: p,
+                                position: pack(i as u16, j as u16) as u32,
+                            };
                         }
                     }
                     let mut tiers = Tiers {
-                        front: values,
+                        front: all,
+                        front_at_hint: 0,
                         hint: i32::MIN,
                         hint_ties: 0,
                         back: &[],
                         low: i32::MIN,
                         low_ties: 0,
                         complete: true,
-                        scratch: copy,
+                        scratch: memory.scratch,
                     };
                     // Complete candidates always cut (N < pixels); the
                     // fallback keeps nothing and is never taken.
@@ -607,7 +586,7 @@ impl<'c, 'm> Engine<'c, 'm> {
                     let level = level(&cut, state);
                     state.seed.observe(cut.cutoff, too_high);
                     let mut moments = Moments::ZERO;
-                    select::add_moments(&mut moments, &cut, level, values, positions);
+                    select::add_moments(&mut moments, &cut, level, all);
                     moments
                 }
             }
@@ -759,7 +738,7 @@ fn copy_pixels(from: &[u16], to: &mut [u16]) {
     tt.copy_from_slice(ft);
 }
 
-/// Why [`Scan::run`] stopped before the end of its run.
+/// Why [`scan`] stopped before the end of its run.
 enum Stop {
     End,
     /// The pixel at this offset of the segment is above the bit depth.
@@ -767,143 +746,231 @@ enum Stop {
     /// The buffer is full; the pixel at offset `k` is still to be placed.
     Full {
         k: usize,
-        p: i32,
-        position: u16,
+        entry: Entry,
     },
 }
 
-/// The selection state of a window while one of its segments is scanned:
-/// the hot loop's locals. In the scan the tiers are only two: `p >= hint`
-/// goes to the front, `admit <= p < hint` to the back (pixels equal to the
-/// hint or to `low` stay individual entries; only a compaction gathers them
-/// into tie buckets, see `select.rs`).
-struct Scan {
-    hint: i32,
-    /// Smallest value admitted: `low`, or `hint + 1` once admission is strict.
-    admit: i32,
-    front: usize,
-    back: usize,
-    /// Front entries equal to the hint.
-    at_hint: u16,
+/// One window's run of pixels to scan, with what calibrating them takes.
+struct Segment<'a> {
+    /// Pixels `start ..` of the segment.
+    raw: &'a [u16],
+    start: usize,
+    /// The whole segment's maps, as `calibrate::run_maps` gives them.
+    background: &'a [i32],
+    gain: &'a [u16],
+    fixed: i32,
+    /// Packed position of the segment's first pixel.
+    base: u16,
+    max_raw: u16,
 }
 
-impl Scan {
-    /// Admits the pixels of `raw` (offsets `start ..` of the segment; the
-    /// maps are the whole segment's, as `calibrate::run_maps` gives them)
-    /// that reach `floor` and calibrate to at least `admit`.
-    #[allow(clippy::too_many_arguments)]
-    #[inline(always)]
-    fn run<S: Steps, const CHECK: bool>(
-        &mut self,
-        raw: &[u16],
-        start: usize,
-        floor: u32,
-        max_raw: u16,
-        background: &[i32],
-        gain: &[u16],
-        fixed: i32,
-        i0: u16,
-        j: u16,
-        values: &mut [i32],
-        positions: &mut [u16],
-    ) -> Stop {
-        let capacity = values.len().min(positions.len());
-        let segment = background.len().max(gain.len()).max(start + raw.len());
-        debug_assert!(S::BACKGROUND <= (background.len() == segment));
-        debug_assert!(S::GAIN <= (gain.len() == segment));
-        let (hint, admit) = (self.hint, self.admit);
-        let (mut front, mut back, mut at_hint) = (self.front, self.back, self.at_hint);
-        let base = pack(i0, j);
-        let mut stop = Stop::End;
-        // One pixel: r at offset k of the segment (k < its length).
-        macro_rules! pixel {
-            ($out:lifetime, $k:expr, $r:expr) => {{
-                let (k, r) = ($k, $r);
-                if CHECK && r > max_raw {
-                    stop = Stop::OutOfRange(k);
+/// The hot loop: admits the pixels of a segment that reach the window's
+/// raw floor and calibrate to at least its admission threshold. In the
+/// scan the tiers are only two: `p >= hint` goes to the front, below it to
+/// the back (pixels equal to the hint or to `low` stay individual entries;
+/// only a compaction gathers them into tie buckets, see `select.rs`).
+#[inline(never)]
+fn scan<S: Steps, const CHECK: bool>(
+    window: &mut OpenWindow,
+    entries: &mut [Entry],
+    segment: &Segment<'_>,
+) -> Stop {
+    let Segment {
+        raw,
+        start,
+        background,
+        gain,
+        fixed,
+        base,
+        max_raw,
+    } = *segment;
+    let capacity = entries.len();
+    let hint = window.hint;
+    let admit = if window.strict {
+        hint.saturating_add(1)
+    } else {
+        window.low
+    };
+    let floor = window.floor;
+    let (front, back) = (window.front as usize, window.back as usize);
+    // The maps cover the whole segment; the scan reads offsets `start ..`.
+    let end = start + raw.len();
+    assert!((!S::BACKGROUND || background.len() >= end) && (!S::GAIN || gain.len() >= end));
+    assert!(front + back <= capacity);
+    let mut filled = Tiers2 {
+        front,
+        back,
+        capacity,
+    };
+    let stop = if capacity - front - back >= raw.len() {
+        // Room for every pixel of the run: no check of room per pixel.
+        scan_run::<S, CHECK, false>(
+            raw,
+            start,
+            floor,
+            admit,
+            hint,
+            background,
+            gain,
+            fixed,
+            base,
+            max_raw,
+            entries,
+            &mut filled,
+        )
+    } else {
+        scan_run::<S, CHECK, true>(
+            raw,
+            start,
+            floor,
+            admit,
+            hint,
+            background,
+            gain,
+            fixed,
+            base,
+            max_raw,
+            entries,
+            &mut filled,
+        )
+    };
+    window.at_hint += count_at_hint(&entries[front..filled.front], hint);
+    window.front = filled.front as u16;
+    window.back = filled.back as u16;
+    stop
+}
+
+/// How much of a candidate buffer the front and back fill.
+struct Tiers2 {
+    front: usize,
+    back: usize,
+    capacity: usize,
+}
+
+/// Front entries equal to the hint.
+#[inline(always)]
+fn count_at_hint(entries: &[Entry], hint: i32) -> u16 {
+    entries.iter().filter(|e| e.value == hint).count() as u16
+}
+
+/// The pixel loop of [`scan`]; `ROOM`: check for room before each store.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn scan_run<S: Steps, const CHECK: bool, const ROOM: bool>(
+    raw: &[u16],
+    start: usize,
+    floor: u32,
+    admit: i32,
+    hint: i32,
+    background: &[i32],
+    gain: &[u16],
+    fixed: i32,
+    base: u16,
+    max_raw: u16,
+    entries: &mut [Entry],
+    filled: &mut Tiers2,
+) -> Stop {
+    let capacity = filled.capacity;
+    debug_assert!(capacity <= entries.len());
+    let origin = entries.as_mut_ptr();
+    // SAFETY (for every pointer below): `front` and `back` are the tiers'
+    // ends, front + back <= capacity <= entries.len(); a store happens only
+    // where room was proved: for the whole run by the caller (`!ROOM`,
+    // capacity - front - back >= raw.len() and each pixel stores at most
+    // once) or just before it (`ROOM`).
+    let mut front_end = unsafe { origin.add(filled.front) };
+    let mut back_start = unsafe { origin.add(capacity - filled.back) };
+    let mut stop = Stop::End;
+    // One pixel: r at offset k of the segment (k < end, within the maps).
+    macro_rules! pixel {
+        ($out:lifetime, $k:expr, $r:expr) => {{
+            let (k, r) = ($k, $r);
+            if CHECK && r > max_raw {
+                stop = Stop::OutOfRange(k);
+                break $out;
+            }
+            // SAFETY: k < start + raw.len() <= the maps' lengths (asserted
+            // by `scan`).
+            let p =
+                unsafe { calibrate::value_in_run_unchecked::<S>(r, k, background, gain, fixed) };
+            if p >= admit {
+                let entry = Entry {
+                    value: p,
+                    position: (base + k as u16) as u32,
+                };
+                if ROOM && front_end == back_start {
+                    stop = Stop::Full { k, entry };
                     break $out;
                 }
-                let p = calibrate::value_in_run::<S>(r, k, background, gain, fixed);
-                if p >= admit {
-                    let position = base + k as u16;
-                    if front + back == capacity {
-                        stop = Stop::Full { k, p, position };
-                        break $out;
+                // SAFETY: see above.
+                unsafe {
+                    if p >= hint {
+                        front_end.write(entry);
+                        front_end = front_end.add(1);
+                    } else {
+                        back_start = back_start.sub(1);
+                        back_start.write(entry);
                     }
-                    // SAFETY: front + back < capacity (just checked), so
-                    // `front` and `capacity - back - 1` index both slices.
-                    unsafe {
-                        if p >= hint {
-                            at_hint += (p == hint) as u16;
-                            *values.get_unchecked_mut(front) = p;
-                            *positions.get_unchecked_mut(front) = position;
-                            front += 1;
-                        } else {
-                            back += 1;
-                            *values.get_unchecked_mut(capacity - back) = p;
-                            *positions.get_unchecked_mut(capacity - back) = position;
-                        }
-                    }
-                }
-            }};
-        }
-        #[allow(clippy::never_loop)]
-        'scan: loop {
-            if floor == 0 {
-                for (k, &r) in raw.iter().enumerate() {
-                    pixel!('scan, start + k, r);
-                }
-                break 'scan;
-            }
-            // floor <= 2^16 - 1 here: a floor of 2^16 skips the segment.
-            let below = (floor - 1) as u16;
-            #[cfg(target_arch = "arm")]
-            {
-                let lanes = below as u32 * 0x0001_0001;
-                // SAFETY: any pair of u16 is a valid u32; align_to only
-                // splits the slice where the words are aligned.
-                let (head, words, tail) = unsafe { raw.align_to::<u32>() };
-                let mut k = start;
-                for &r in head {
-                    if r > below {
-                        pixel!('scan, k, r);
-                    }
-                    k += 1;
-                }
-                let pairs = k;
-                for (w, &word) in words.iter().enumerate() {
-                    if prefilter::uqsub16(word, lanes) != 0 {
-                        let k = pairs + 2 * w;
-                        let (lo, hi) = (word as u16, (word >> 16) as u16);
-                        if lo > below {
-                            pixel!('scan, k, lo);
-                        }
-                        if hi > below {
-                            pixel!('scan, k + 1, hi);
-                        }
-                    }
-                }
-                let mut k = pairs + 2 * words.len();
-                for &r in tail {
-                    if r > below {
-                        pixel!('scan, k, r);
-                    }
-                    k += 1;
                 }
             }
-            #[cfg(not(target_arch = "arm"))]
+        }};
+    }
+    #[allow(clippy::never_loop)]
+    'scan: loop {
+        if floor == 0 {
             for (k, &r) in raw.iter().enumerate() {
-                if r > below {
-                    pixel!('scan, start + k, r);
-                }
+                pixel!('scan, start + k, r);
             }
             break 'scan;
         }
-        self.front = front;
-        self.back = back;
-        self.at_hint = at_hint;
-        stop
+        // floor <= 2^16 - 1 here: a floor of 2^16 skips the segment.
+        let below = (floor - 1) as u16;
+        #[cfg(target_arch = "arm")]
+        {
+            let lanes = below as u32 * 0x0001_0001;
+            // SAFETY: any pair of u16 is a valid u32; align_to only splits
+            // the slice where the words are aligned.
+            let (head, words, tail) = unsafe { raw.align_to::<u32>() };
+            let mut k = start;
+            for &r in head {
+                if r > below {
+                    pixel!('scan, k, r);
+                }
+                k += 1;
+            }
+            let pairs = k;
+            for (w, &word) in words.iter().enumerate() {
+                let passing = prefilter::uqsub16(word, lanes);
+                if passing != 0 {
+                    let k = pairs + 2 * w;
+                    if passing & 0xffff != 0 {
+                        pixel!('scan, k, word as u16);
+                    }
+                    if passing >> 16 != 0 {
+                        pixel!('scan, k + 1, (word >> 16) as u16);
+                    }
+                }
+            }
+            for (k, &r) in (pairs + 2 * words.len()..).zip(tail) {
+                if r > below {
+                    pixel!('scan, k, r);
+                }
+            }
+        }
+        #[cfg(not(target_arch = "arm"))]
+        for (k, &r) in raw.iter().enumerate() {
+            if r > below {
+                pixel!('scan, start + k, r);
+            }
+        }
+        break 'scan;
     }
+    // SAFETY: both pointers stay within the buffer (see above).
+    unsafe {
+        filled.front = front_end.offset_from(origin) as usize;
+        filled.back = capacity - back_start.offset_from(origin) as usize;
+    }
+    stop
 }
 
 /// The pre-filter's raw floor for a window's admission threshold, lowered
@@ -937,8 +1004,7 @@ fn covers(window: &OpenWindow, config: &Config<'_>) -> bool {
 #[inline(never)]
 fn make_room(
     window: &mut OpenWindow,
-    values: &mut [i32],
-    positions: &mut [u16],
+    entries: &mut [Entry],
     config: &Config<'_>,
     scratch: &mut [i32],
 ) -> bool {
@@ -954,9 +1020,9 @@ fn make_room(
         return true;
     }
     let mut buffer = Buffer {
-        values,
-        positions,
+        entries,
         front: window.front as usize,
+        at_hint: window.at_hint,
         back: window.back as usize,
         hint: window.hint,
         hint_ties: window.hint_ties,
@@ -967,45 +1033,35 @@ fn make_room(
     if !buffer.compact(&rule, scratch) {
         return false;
     }
-    if buffer.hint != window.hint {
-        // The front now holds only values above the new hint.
-        window.at_hint = 0;
-    }
     window.front = buffer.front as u16;
+    window.at_hint = buffer.at_hint;
     window.back = buffer.back as u16;
     window.hint = buffer.hint;
     window.hint_ties = buffer.hint_ties;
     window.low = buffer.low;
     window.low_ties = buffer.low_ties;
     window.strict = buffer.strict;
-    buffer.front + buffer.back < buffer.values.len()
+    buffer.front + buffer.back < buffer.entries.len()
 }
 
 /// Puts an admitted pixel into its tier, after [`make_room`].
 #[cold]
-fn place(
-    window: &mut OpenWindow,
-    values: &mut [i32],
-    positions: &mut [u16],
-    p: i32,
-    position: u16,
-) {
+fn place(window: &mut OpenWindow, entries: &mut [Entry], entry: Entry) {
     let admit = if window.strict {
         window.hint.saturating_add(1)
     } else {
         window.low
     };
-    let capacity = values.len();
+    let capacity = entries.len();
+    let p = entry.value;
     if p < admit {
     } else if p >= window.hint {
         window.at_hint += (p == window.hint) as u16;
-        values[window.front as usize] = p;
-        positions[window.front as usize] = position;
+        entries[window.front as usize] = entry;
         window.front += 1;
     } else {
         window.back += 1;
-        values[capacity - window.back as usize] = p;
-        positions[capacity - window.back as usize] = position;
+        entries[capacity - window.back as usize] = entry;
     }
 }
 

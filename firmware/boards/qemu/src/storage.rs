@@ -12,7 +12,7 @@
 //!
 //! Bytes (`TOTAL_BYTES`, logged at boot): two configuration slots of
 //! 18 B per sub-aperture + 6 B per map pixel (1.0 MB), the engine's 26 B
-//! per sub-aperture, 6 B per pool entry, 2 B per history pixel and 10 B per
+//! per sub-aperture, 8 B per pool entry, 2 B per history pixel and 12 B per
 //! scratch entry (1.1 MB), vetting scratch, result queue, link buffers and
 //! the pixel stream's buffers: about 2.2 MB in all, leaving over 1.5 MB of
 //! RAM for the stack and the rest.
@@ -24,6 +24,7 @@
 //! flash image and copied at every boot.
 
 use brightpix_firmware::device::{DeviceBuffers, SlotStorage};
+use brightpix_firmware::engine::select::Entry;
 use brightpix_firmware::engine::{EngineMemory, OpenWindow, SubapertureResult, SubapertureState};
 use brightpix_protocol::wire::{MAX_FRAME_LEN, MAX_PIXEL_BYTES};
 use static_cell::ConstStaticCell;
@@ -67,13 +68,12 @@ static OPEN_WINDOWS: ConstStaticCell<[OpenWindow; OPEN]> =
     ConstStaticCell::new([OpenWindow::CLOSED; OPEN]);
 static ACTIVE: ConstStaticCell<[u16; OPEN]> = ConstStaticCell::new([0; OPEN]);
 static FREE: ConstStaticCell<[u16; OPEN]> = ConstStaticCell::new([0; OPEN]);
-static POOL_VALUES: ConstStaticCell<[i32; ENTRIES]> = ConstStaticCell::new([0; ENTRIES]);
-static POOL_POSITIONS: ConstStaticCell<[u16; ENTRIES]> = ConstStaticCell::new([0; ENTRIES]);
+static POOL: ConstStaticCell<[Entry; ENTRIES]> = ConstStaticCell::new([Entry::ZERO; ENTRIES]);
 static HISTORY: ConstStaticCell<[u16; HISTORY_PIXELS]> = ConstStaticCell::new([0; HISTORY_PIXELS]);
-static SCRATCH: ConstStaticCell<[i32; 2 * SCRATCH_ENTRIES]> =
-    ConstStaticCell::new([0; 2 * SCRATCH_ENTRIES]);
-static SCRATCH_POSITIONS: ConstStaticCell<[u16; SCRATCH_ENTRIES]> =
+static SCRATCH: ConstStaticCell<[i32; SCRATCH_ENTRIES]> =
     ConstStaticCell::new([0; SCRATCH_ENTRIES]);
+static RESCAN: ConstStaticCell<[Entry; SCRATCH_ENTRIES]> =
+    ConstStaticCell::new([Entry::ZERO; SCRATCH_ENTRIES]);
 static VET_ORDER: ConstStaticCell<[u16; S]> = ConstStaticCell::new([0; S]);
 static VET_SCRATCH: ConstStaticCell<[u16; S]> = ConstStaticCell::new([0; S]);
 static RESULTS: ConstStaticCell<[SubapertureResult; Q]> = ConstStaticCell::new([NO_RESULT; Q]);
@@ -88,9 +88,9 @@ static STREAM_PIXELS: ConstStaticCell<[u16; PIXEL_BATCH]> = ConstStaticCell::new
 pub const TOTAL_BYTES: usize = 2 * core::mem::size_of::<SlotStorage<S, P>>()
     + S * (2 + core::mem::size_of::<SubapertureState>())
     + OPEN * (core::mem::size_of::<OpenWindow>() + 4)
-    + ENTRIES * 6
+    + ENTRIES * 8
     + HISTORY_PIXELS * 2
-    + SCRATCH_ENTRIES * 10
+    + SCRATCH_ENTRIES * 12
     + 2 * S * 2
     + Q * core::mem::size_of::<SubapertureResult>()
     + 2 * MAX_FRAME_LEN
@@ -107,11 +107,10 @@ pub fn device_buffers() -> DeviceBuffers<'static> {
             open: OPEN_WINDOWS.take(),
             active: ACTIVE.take(),
             free: FREE.take(),
-            values: POOL_VALUES.take(),
-            positions: POOL_POSITIONS.take(),
+            entries: POOL.take(),
             history: HISTORY.take(),
             scratch: SCRATCH.take(),
-            scratch_positions: SCRATCH_POSITIONS.take(),
+            rescan: RESCAN.take(),
         },
         order: VET_ORDER.take(),
         scratch: VET_SCRATCH.take(),

@@ -6,7 +6,7 @@
 //!
 //! | memory | what | bytes |
 //! |---|---|---|
-//! | DTCM (128 KiB, RAM: `.data`/`.bss`/stack) | engine memory (1600 sub-apertures, 128 open windows, 4096 candidate entries) | about 77 000 |
+//! | DTCM (128 KiB, RAM: `.data`/`.bss`/stack) | engine memory (1600 sub-apertures, 128 open windows, 3072 candidate entries) | about 77 000 |
 //! | | upload vetting scratch, result queue (64 per row), link buffers, `PixelRows` batch | 12 000 |
 //! | | camera run buffers (256 words, 1024 pixels) | 3 072 |
 //! | | stack (at least, checked by the linker), executor task, USB, defmt | >= 16 384 + ~10 000 |
@@ -27,6 +27,7 @@ use core::sync::atomic::{AtomicBool, Ordering};
 
 use brightpix_firmware::device::storage::PIXEL_BATCH;
 use brightpix_firmware::device::{ConfigSlot, DeviceBuffers};
+use brightpix_firmware::engine::select::Entry;
 use brightpix_firmware::engine::{EngineMemory, StaticEngineMemory, SubapertureResult};
 use brightpix_protocol::wire::MAX_FRAME_LEN;
 use brightpix_protocol::SubapertureWindow;
@@ -37,9 +38,10 @@ pub const CAMERA_PIXELS: usize = 240 * 240;
 pub const SUBAPERTURES: usize = 1600;
 /// Windows open at once (one grid row of 40, with room for irregular layouts).
 pub const OPEN_WINDOWS: usize = 128;
-/// Candidate pool entries (e.g. 128 open windows of 32; a window's buffer
-/// is about 2 (N + 1) + 32 entries, at most its pixels).
-pub const POOL_ENTRIES: usize = 4096;
+/// Candidate pool entries, 8 bytes each (e.g. a grid row of 40 windows of
+/// 6x6, 36 each; 41 windows of 16x16 with N = 20, 74 each; a window's
+/// buffer is about 2 (N + 1) + 32 entries, at most its pixels).
+pub const POOL_ENTRIES: usize = 3072;
 /// Row-history pixels: selecting windows up to 16 rows tall on a 240-pixel
 /// wide camera.
 pub const HISTORY_PIXELS: usize = 16 * 240;
@@ -67,8 +69,8 @@ pub struct AxiSram {
 #[repr(C)]
 pub struct EngineSram {
     pub history: [u16; HISTORY_PIXELS],
-    pub scratch: [i32; 2 * SCRATCH_ENTRIES],
-    pub scratch_positions: [u16; SCRATCH_ENTRIES],
+    pub scratch: [i32; SCRATCH_ENTRIES],
+    pub rescan: [Entry; SCRATCH_ENTRIES],
 }
 
 /// D2 SRAM1-3: the gain maps and the per-sub-aperture tables.
@@ -176,7 +178,7 @@ pub fn device_buffers<'d>(
         engine: EngineMemory {
             history: &mut engine_sram.history,
             scratch: &mut engine_sram.scratch,
-            scratch_positions: &mut engine_sram.scratch_positions,
+            rescan: &mut engine_sram.rescan,
             ..dtcm.engine.borrow()
         },
         order: dtcm.order,
