@@ -302,9 +302,68 @@ fn device_messages() -> Vec<(&'static str, DeviceMessage<'static>)> {
                 session: Some(0x1234_abcd),
                 reset_reason: ResetReason::PowerOn,
                 watchdog_ms: Some(1000),
+                health: Health::default(),
+            }),
+        ),
+        (
+            "a board that reads its own health (an STM32H743 rev Y in bring-up)",
+            DeviceMessage::Status(Status {
+                session: Some(1),
+                reset_reason: ResetReason::Pin,
+                watchdog_ms: Some(2000),
+                health: Health {
+                    silicon: Some(Silicon {
+                        device_id: 0x450,
+                        revision_id: 0x1003,
+                        axi_sram_fix: ErratumFix::Applied,
+                    }),
+                    clocks: Some(Clocks {
+                        sysclk_configured_hz: 400_000_000,
+                        sysclk_read_hz: 400_000_000,
+                        voltage_scale_configured: 1,
+                        voltage_scale_read: 1,
+                        voltage_ready: true,
+                    }),
+                    usb_clock: Some(UsbClockSync {
+                        sync_source: 3,
+                        synced: true,
+                        trim: 33,
+                        sync_errors: 0,
+                    }),
+                    stack: Some(StackUsage {
+                        size: 47_808,
+                        peak: 3_120,
+                        guarded: true,
+                    }),
+                    camera_interface: Some(CameraInterface {
+                        overruns: 1,
+                        sync_errors: 0,
+                        dma_transfer_errors: 0,
+                        dma_fifo_errors: 2,
+                        fifo_not_drained: 0,
+                    }),
+                    idle_permille: Some(875),
+                },
+                ..Status::default()
             }),
         ),
     ];
+    for fix in [ErratumFix::NotNeeded, ErratumFix::Failed] {
+        all.push((
+            "the AXI SRAM erratum's workaround on other revisions",
+            DeviceMessage::Status(Status {
+                health: Health {
+                    silicon: Some(Silicon {
+                        device_id: 0x450,
+                        revision_id: 0x2003,
+                        axi_sram_fix: fix,
+                    }),
+                    ..Health::default()
+                },
+                ..Status::default()
+            }),
+        ));
+    }
     for reason in [
         ResetReason::Unknown,
         ResetReason::Pin,

@@ -47,7 +47,7 @@ use core::convert::Infallible;
 
 use brightpix_protocol::wire::{
     decode_body, encode, hello_in_body, unstuff, Ack, Capabilities, ConfigHeader, Crc32Digest,
-    DeviceError, DeviceMessage, FrameFault, FrameReader, Hello, HelloReply, HostMessage,
+    DeviceError, DeviceMessage, FrameFault, FrameReader, Health, Hello, HelloReply, HostMessage,
     MessageKind, PixelSourceKind, Received, ResetReason, SlopeEntry, SlopeList, Status, Table,
     TablePosition, WireError, CRC32, MAX_BOARD_NAME_LEN, MAX_CHUNK_BYTES, MAX_FRAME_LEN,
     SLOPES_PER_MESSAGE,
@@ -113,6 +113,8 @@ struct Core<'d, T, W> {
     capture: Option<Capture>,
     capture_finished: bool,
     counters: Status,
+    /// Reads the board's health for `Status.health`.
+    health: fn() -> Health,
 }
 
 struct Applying {
@@ -215,6 +217,7 @@ impl<'d, T: Read + Write, C: PixelSource> Device<'d, T, C, NoWatchdog> {
                 capture: None,
                 capture_finished: false,
                 counters: Status::default(),
+                health: Health::default,
             },
         }
     }
@@ -255,6 +258,7 @@ impl<'d, T: Read + Write, C: PixelSource> Device<'d, T, C, NoWatchdog> {
                 capture: core.capture,
                 capture_finished: core.capture_finished,
                 counters,
+                health: core.health,
             },
         }
     }
@@ -265,6 +269,12 @@ impl<'d, T: Read + Write, C: PixelSource, W: Watchdog> Device<'d, T, C, W> {
     /// (reported in `Status.reset_reason`).
     pub fn set_reset_reason(&mut self, reason: ResetReason) {
         self.core.counters.reset_reason = reason;
+    }
+
+    /// How the board reads its health (`Status.health`), called for every
+    /// `StatusRequest`. Without it every part is `None`: not read.
+    pub fn set_health(&mut self, read: fn() -> Health) {
+        self.core.health = read;
     }
 
     /// The watchdog (e.g. to feed it while the board waits for a link).
@@ -365,6 +375,7 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
         Status {
             upload_id: self.upload.as_ref().map(|u| u.id),
             capturing: self.capture.is_some(),
+            health: (self.health)(),
             ..self.counters
         }
     }

@@ -48,6 +48,7 @@
 //! prefix with [`hello_prefix`] and report [`VersionMismatch`].
 
 pub mod frame;
+pub mod health;
 pub mod tables;
 
 use core::fmt;
@@ -62,6 +63,7 @@ pub use frame::{
     decode, decode_body, encode, hello_in_body, hello_prefix, unstuff, Crc32Digest, FrameReader,
     Received, WireError, CRC32, CRC_LEN,
 };
+pub use health::{CameraInterface, Clocks, ErratumFix, Health, Silicon, StackUsage, UsbClockSync};
 pub use tables::{PixelRowsPlan, UploadPlan};
 
 /// Bumped by hand whenever the meaning of a message changes without its
@@ -406,6 +408,8 @@ pub struct Status {
     pub reset_reason: ResetReason,
     /// The independent watchdog's timeout in ms, if the board runs one.
     pub watchdog_ms: Option<u32>,
+    /// The board's health ([`health`]): what only the board can read.
+    pub health: Health,
 }
 
 /// Why the device last started, as its board's reset controller says.

@@ -145,6 +145,39 @@ fn device_examples() -> Vec<DeviceMessage<'static>> {
             session: Some(u32::MAX),
             reset_reason: ResetReason::Watchdog,
             watchdog_ms: Some(u32::MAX),
+            health: Health {
+                silicon: Some(Silicon {
+                    device_id: u16::MAX,
+                    revision_id: u16::MAX,
+                    axi_sram_fix: ErratumFix::Failed,
+                }),
+                clocks: Some(Clocks {
+                    sysclk_configured_hz: u32::MAX,
+                    sysclk_read_hz: u32::MAX,
+                    voltage_scale_configured: u8::MAX,
+                    voltage_scale_read: u8::MAX,
+                    voltage_ready: true,
+                }),
+                usb_clock: Some(UsbClockSync {
+                    sync_source: u8::MAX,
+                    synced: true,
+                    trim: u8::MAX,
+                    sync_errors: u32::MAX,
+                }),
+                stack: Some(StackUsage {
+                    size: u32::MAX,
+                    peak: u32::MAX,
+                    guarded: true,
+                }),
+                camera_interface: Some(CameraInterface {
+                    overruns: u32::MAX,
+                    sync_errors: u32::MAX,
+                    dma_transfer_errors: u32::MAX,
+                    dma_fifo_errors: u32::MAX,
+                    fifo_not_drained: u32::MAX,
+                }),
+                idle_permille: Some(u16::MAX),
+            },
         }),
         DeviceMessage::Slopes {
             frame: u32::MAX,
@@ -590,7 +623,7 @@ fn schema_hash_is_pinned() {
     );
 }
 
-const PINNED_SCHEMA_HASH: u64 = 0x4734_f62f_787d_1b6d;
+const PINNED_SCHEMA_HASH: u64 = 0xe35c_2a17_aa50_94d5;
 
 fn hash_of<T: Schema + ?Sized>() -> u64 {
     u64::from_le_bytes(hash_ty_path::<T>(WIRE_CONVENTIONS))

@@ -211,6 +211,7 @@ ERRORS = ["Decode", "Crc", "FrameTooLong", "HelloRequired", "Unexpected", "NoUpl
           "UploadMismatch", "ChunkOutOfOrder", "ChunkLength", "ChunkPastEnd", "UploadIncomplete",
           "UploadCrc", "Capacity", "Config", "NotConfigured", "Frame", "NoCamera"]
 SOURCES = ["Link", "Stream", "Camera"]
+ERRATUM_FIXES = ["NotNeeded", "Applied", "Failed"]
 
 
 def decode_device(body):
@@ -253,7 +254,8 @@ def decode_device(body):
                               frames_dropped=r.varint(), crc_errors=r.varint(),
                               decode_errors=r.varint(), overruns=r.varint(),
                               pixel_errors=r.varint(), session=r.option(r.varint),
-                              reset_reason=r.varint(), watchdog_ms=r.option(r.varint))
+                              reset_reason=r.varint(), watchdog_ms=r.option(r.varint),
+                              health=decode_health(r))
     if kind == 4:
         frame_id = r.varint()
         entries = []
@@ -263,6 +265,25 @@ def decode_device(body):
     if kind == 5:
         return "FrameDone", dict(frame=r.varint(), count=r.varint())
     raise ValueError("unknown device message %d" % kind)
+
+
+def decode_health(r):
+    """Status.health (PROTOCOL.md §5): six options; u8 is one byte, wider
+    integers are varints."""
+    silicon = r.option(lambda: dict(device_id=r.varint(), revision_id=r.varint(),
+                                    axi_sram_fix=r.varint()))
+    clocks = r.option(lambda: dict(sysclk_configured_hz=r.varint(), sysclk_read_hz=r.varint(),
+                                   voltage_scale_configured=r.u8(), voltage_scale_read=r.u8(),
+                                   voltage_ready=r.bool()))
+    usb_clock = r.option(lambda: dict(sync_source=r.u8(), synced=r.bool(), trim=r.u8(),
+                                      sync_errors=r.varint()))
+    stack = r.option(lambda: dict(size=r.varint(), peak=r.varint(), guarded=r.bool()))
+    camera = r.option(lambda: dict(overruns=r.varint(), sync_errors=r.varint(),
+                                   dma_transfer_errors=r.varint(), dma_fifo_errors=r.varint(),
+                                   fifo_not_drained=r.varint()))
+    idle = r.option(r.varint)
+    return dict(silicon=silicon, clocks=clocks, usb_clock=usb_clock, stack=stack,
+                camera_interface=camera, idle_permille=idle)
 
 
 def schema_from_protocol_md():
@@ -602,6 +623,11 @@ def check_vectors():
             st = message["Status"]
             for key in ("frames_processed", "crc_errors", "session", "watchdog_ms"):
                 assert fields[key] == st[key], (key, fields, st)
+            health = dict(st["health"])
+            if health["silicon"] is not None:
+                fix = health["silicon"]["axi_sram_fix"]
+                health["silicon"] = dict(health["silicon"], axi_sram_fix=ERRATUM_FIXES.index(fix))
+            assert fields["health"] == health, (fields["health"], health)
         count += 1
     print("vectors: %d device messages decoded and the Hello encoded as in "
           "shared/protocol-vectors.json" % count)

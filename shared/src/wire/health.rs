@@ -1,0 +1,106 @@
+//! The board's health, reported at the end of [`Status`](super::Status):
+//! what a bring-up engineer checks first on a new board (`brightpix
+//! doctor`). Every part is an `Option`: `None` is a reading this board
+//! cannot make (a simulated device has no silicon revision, clock tree,
+//! HSI48 trimming or camera interface), never "zero".
+
+use postcard_schema::Schema;
+use serde::{Deserialize, Serialize};
+
+/// The board's own view of itself (PROTOCOL.md §5, `Health`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct Health {
+    /// The chip and its errata workarounds.
+    pub silicon: Option<Silicon>,
+    /// The system clock and core voltage, as configured and as read back.
+    pub clocks: Option<Clocks>,
+    /// The trimming of the USB kernel clock (HSI48 by the CRS).
+    pub usb_clock: Option<UsbClockSync>,
+    /// The main stack: size, deepest use so far, guard.
+    pub stack: Option<StackUsage>,
+    /// Fault counters of the camera interface and its DMA, since start.
+    pub camera_interface: Option<CameraInterface>,
+    /// Share of time the CPU slept (WFI) since the previous `Status`, in
+    /// 1/1000.
+    pub idle_permille: Option<u16>,
+}
+
+/// The chip, as its debug unit identifies it (STM32: DBGMCU_IDCODE).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct Silicon {
+    /// DEV_ID (0x450: STM32H742/743/750/753).
+    pub device_id: u16,
+    /// REV_ID (STM32H743: 0x1003 revision Y, 0x2003 revision V).
+    pub revision_id: u16,
+    /// The AXI SRAM read erratum's workaround (STM32H743 rev Y).
+    pub axi_sram_fix: ErratumFix,
+}
+
+/// Whether an erratum's workaround is in place.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub enum ErratumFix {
+    /// This revision does not have the erratum.
+    NotNeeded,
+    /// Needed, applied and read back.
+    Applied,
+    /// Needed, but the register did not read back as written.
+    Failed,
+}
+
+/// Clock and core voltage.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct Clocks {
+    /// System (CPU) clock the firmware asked for, Hz.
+    pub sysclk_configured_hz: u32,
+    /// System clock worked out from the clock registers as they are, Hz.
+    pub sysclk_read_hz: u32,
+    /// Voltage scale asked for (STM32H7: VOS 0-3; 1 is the highest without
+    /// overdrive).
+    pub voltage_scale_configured: u8,
+    /// Voltage scale the regulator reports.
+    pub voltage_scale_read: u8,
+    /// The regulator reports its output ready at that scale.
+    pub voltage_ready: bool,
+}
+
+/// The USB clock's automatic trimming (STM32: the CRS trims HSI48 against
+/// the USB start-of-frame every millisecond).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct UsbClockSync {
+    /// Synchronisation source (STM32H7 CRS_CFGR.SYNCSRC: 0 CRS_SYNC pin,
+    /// 1 LSE, 2 USB1 (OTG_HS) SOF, 3 USB2 (OTG_FS) SOF).
+    pub sync_source: u8,
+    /// A "synchronisation OK" event has been seen since start.
+    pub synced: bool,
+    /// The oscillator's trim now (HSI48: 6 bits, 32 is the middle).
+    pub trim: u8,
+    /// Synchronisation errors, misses and trim overflows since start.
+    pub sync_errors: u32,
+}
+
+/// The main stack.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct StackUsage {
+    /// Bytes reserved for it.
+    pub size: u32,
+    /// Most bytes used so far (the painted stack's high-water mark).
+    pub peak: u32,
+    /// An overflow faults (a guard region below the stack) instead of
+    /// overwriting other data.
+    pub guarded: bool,
+}
+
+/// Fault counters of the camera interface (STM32: DCMI and its DMA stream).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct CameraInterface {
+    /// The interface's own FIFO overflowed: pixels lost before the DMA.
+    pub overruns: u32,
+    /// Synchronisation errors (embedded codes out of order).
+    pub sync_errors: u32,
+    /// DMA transfer and direct-mode errors (each stops the stream).
+    pub dma_transfer_errors: u32,
+    /// DMA FIFO errors (under- or overrun of the DMA's own FIFO).
+    pub dma_fifo_errors: u32,
+    /// Frame ends at which the interface's FIFO had not drained.
+    pub fifo_not_drained: u32,
+}
