@@ -153,11 +153,14 @@ pub struct Cut {
 impl Cut {
     #[inline(always)]
     pub fn keeps(&self, p: i32) -> bool {
-        if self.strict {
-            p > self.bound
-        } else {
-            p >= self.bound
-        }
+        p >= self.lowest_kept()
+    }
+
+    /// The smallest value kept (`bound + 1` when strict; a strict bound of
+    /// `i32::MAX` keeps nothing, and no value reaches `i32::MAX`).
+    #[inline(always)]
+    pub fn lowest_kept(&self) -> i32 {
+        self.bound.saturating_add(self.strict as i32)
     }
 }
 
@@ -453,10 +456,11 @@ pub fn cut(rule: &WindowRule, c: &mut Tiers<'_>) -> Result<Cut, TooShallow> {
 /// rules) reduced to centre-of-gravity moments over candidates.
 #[inline(always)]
 pub fn add_moments(moments: &mut Moments, cut: &Cut, level: Option<i32>, entries: &[Entry]) {
+    let lowest = cut.lowest_kept();
     match level {
         Some(level) => {
             for e in entries {
-                if cut.keeps(e.value) {
+                if e.value >= lowest {
                     let position = e.position as u16;
                     moments.add((e.value - level).max(0), column(position), row(position));
                 }
@@ -464,7 +468,7 @@ pub fn add_moments(moments: &mut Moments, cut: &Cut, level: Option<i32>, entries
         }
         None => {
             for e in entries {
-                if cut.keeps(e.value) {
+                if e.value >= lowest {
                     let position = e.position as u16;
                     moments.add(e.value, column(position), row(position));
                 }

@@ -95,6 +95,9 @@ pub struct Engine<'c, 'm> {
     cursor: usize,
     /// Some window's last pixel arrived in the current row.
     finished_in_row: bool,
+    /// The active windows do not overlap (each ends at or before the next
+    /// one's first column): a whole row can take [`Self::push_whole_row`].
+    disjoint: bool,
     frames: u32,
     needed: MemorySize,
     stats: EngineStats,
@@ -146,6 +149,7 @@ impl<'c, 'm> Engine<'c, 'm> {
             free_len: 0,
             cursor: 0,
             finished_in_row: false,
+            disjoint: true,
             frames: 0,
             needed: plan.needed,
             stats: EngineStats::default(),
@@ -258,7 +262,12 @@ impl<'c, 'm> Engine<'c, 'm> {
                     (self.row as usize % self.history_rows) * width as usize + self.column as usize;
                 copy_pixels(part, &mut self.memory.history[at..at + take]);
             }
-            if let Err(bad) = self.push_row_part::<S, CHECK>(part, sink) {
+            let pushed = if take == width as usize && self.disjoint {
+                self.push_whole_row::<S, CHECK>(part, sink)
+            } else {
+                self.push_row_part::<S, CHECK>(part, sink)
+            };
+            if let Err(bad) = pushed {
                 let error = FrameError::PixelOutOfRange {
                     row: self.row,
                     column: self.column + bad as u16,
@@ -272,6 +281,53 @@ impl<'c, 'm> Engine<'c, 'm> {
                 self.end_row(sink);
             }
             pixels = rest;
+        }
+        Ok(())
+    }
+
+    /// A whole row when the active windows do not overlap: the common case,
+    /// without [`Self::push_row_part`]'s bookkeeping for chunks that start
+    /// or end inside a window. Same contract: on a pixel out of range, its
+    /// column; the windows ending before it have been emitted, no other
+    /// (windows are visited left to right and each gap is checked before
+    /// the window after it).
+    #[inline(always)]
+    fn push_whole_row<S: Steps, const CHECK: bool>(
+        &mut self,
+        row_pixels: &[u16],
+        sink: &mut impl OutputSink,
+    ) -> Result<(), usize> {
+        let row = self.row;
+        let row_offset = row as usize * row_pixels.len();
+        let mut checked = 0;
+        for k in 0..self.active_len {
+            let slot = self.memory.active[k] as usize;
+            let window = &self.memory.open[slot];
+            let (x, end) = (window.x as usize, window.end_column as usize);
+            if CHECK && x > checked {
+                check_range(&row_pixels[checked..x], self.max_raw).map_err(|b| checked + b)?;
+            }
+            let raw = &row_pixels[x..end];
+            // Most segments: a selecting window whose pre-filter rejects the
+            // whole segment (`floor` is capped so that an out-of-range pixel
+            // is never rejected).
+            let quiet = window.capacity != 0
+                && !window.rescan
+                && (window.floor >= calibrate::FLOOR_NONE
+                    || (window.floor != 0 && !prefilter::any_at_least(raw, window.floor as u16)));
+            let last = row == window.last_row;
+            if !quiet {
+                let j = row - window.y;
+                self.segment_rest::<S, CHECK>(slot, raw, row_offset + x, 0, j)
+                    .map_err(|b| x + b)?;
+            }
+            if last {
+                self.finish(slot, sink);
+            }
+            checked = end;
+        }
+        if CHECK && checked < row_pixels.len() {
+            check_range(&row_pixels[checked..], self.max_raw).map_err(|b| checked + b)?;
         }
         Ok(())
     }
@@ -455,7 +511,10 @@ impl<'c, 'm> Engine<'c, 'm> {
         // Once the front and hint ties prove the cutoff is at or above the
         // hint, nothing below it can matter, and often no more pixels equal
         // to it: filter the rest of the window harder.
-        if !window.strict && covers(window, &self.config) {
+        if !window.strict
+            && window.front + window.hint_ties.count >= window.n
+            && covers(window, entries, &self.config)
+        {
             window.back = 0;
             window.low = window.hint;
             window.low_ties = Ties::NONE;
@@ -489,6 +548,7 @@ impl<'c, 'm> Engine<'c, 'm> {
             let capacity = window.capacity as usize;
             let (front, back) = (window.front as usize, window.back as usize);
             let entries = &memory.entries[base..base + capacity];
+            settle_at_hint(window, entries);
             let filter = self.config.selection.level_filter;
             let level = |cut: &Cut, state: &mut SubapertureState| match filter {
                 Some(f) => state.level.update(cut.level, f.gain_shift),
@@ -616,6 +676,7 @@ impl<'c, 'm> Engine<'c, 'm> {
             }
             self.active_len = kept;
             self.finished_in_row = false;
+            self.disjoint = self.active_windows_disjoint();
         }
         self.cursor = 0;
         self.column = 0;
@@ -696,6 +757,7 @@ impl<'c, 'm> Engine<'c, 'm> {
                 low_ties: Ties::NONE,
                 strict: false,
                 at_hint: 0,
+                counted: 0,
                 floor: raw_floor(&self.config.calibration, state.bounds, low)
                     .min(self.max_raw as u32 + 1),
                 rescan: false,
@@ -713,6 +775,15 @@ impl<'c, 'm> Engine<'c, 'm> {
             active[k] = slot;
             self.active_len += 1;
         }
+        self.disjoint = self.active_windows_disjoint();
+    }
+
+    /// Whether each active window ends at or before the next one starts.
+    fn active_windows_disjoint(&self) -> bool {
+        let open = &self.memory.open;
+        self.memory.active[..self.active_len]
+            .windows(2)
+            .all(|pair| open[pair[0] as usize].end_column <= open[pair[1] as usize].x)
     }
 }
 
@@ -834,7 +905,6 @@ fn scan<S: Steps, const CHECK: bool>(
             &mut filled,
         )
     };
-    window.at_hint += count_at_hint(&entries[front..filled.front], hint);
     window.front = filled.front as u16;
     window.back = filled.back as u16;
     stop
@@ -845,6 +915,16 @@ struct Tiers2 {
     front: usize,
     back: usize,
     capacity: usize,
+}
+
+/// Counts the front entries equal to the hint that arrived since the last
+/// count: `at_hint` is kept lazily, since only the tests of whether the front
+/// covers the hint, compaction and the window's end need it.
+#[inline(always)]
+fn settle_at_hint(window: &mut OpenWindow, entries: &[Entry]) {
+    let (counted, front) = (window.counted as usize, window.front as usize);
+    window.at_hint += count_at_hint(&entries[counted..front], window.hint);
+    window.counted = window.front;
 }
 
 /// Front entries equal to the hint.
@@ -988,7 +1068,8 @@ fn admission_floor(calibration: &Calibration<'_>, max_raw: u16, window: &OpenWin
 /// [`Tiers::covers_hint`] for an open window: its front holds the pixels
 /// above the hint and `at_hint` equal to it, beside its hint ties.
 #[inline(always)]
-fn covers(window: &OpenWindow, config: &Config<'_>) -> bool {
+fn covers(window: &mut OpenWindow, entries: &[Entry], config: &Config<'_>) -> bool {
+    settle_at_hint(window, entries);
     Tiers::covers_hint(
         config.selection.rule,
         window.n,
@@ -1008,12 +1089,13 @@ fn make_room(
     config: &Config<'_>,
     scratch: &mut [i32],
 ) -> bool {
+    settle_at_hint(window, entries);
     let rule = WindowRule {
         rule: config.selection.rule,
         n: window.n,
         pixels: window.pixels(),
     };
-    if window.back > 0 && covers(window, config) {
+    if window.back > 0 && covers(window, entries, config) {
         window.back = 0;
         window.low = window.hint;
         window.low_ties = Ties::NONE;
@@ -1035,6 +1117,7 @@ fn make_room(
     }
     window.front = buffer.front as u16;
     window.at_hint = buffer.at_hint;
+    window.counted = window.front;
     window.back = buffer.back as u16;
     window.hint = buffer.hint;
     window.hint_ties = buffer.hint_ties;
@@ -1056,7 +1139,6 @@ fn place(window: &mut OpenWindow, entries: &mut [Entry], entry: Entry) {
     let p = entry.value;
     if p < admit {
     } else if p >= window.hint {
-        window.at_hint += (p == window.hint) as u16;
         entries[window.front as usize] = entry;
         window.front += 1;
     } else {

@@ -53,6 +53,9 @@ pub struct OpenWindow {
     pub(crate) front: u16,
     /// Front entries equal to the hint (the rest are above it).
     pub(crate) at_hint: u16,
+    /// Front entries whose ties with the hint `at_hint` counts (the rest
+    /// are counted when needed, see `stream::settle_at_hint`).
+    pub(crate) counted: u16,
     /// Candidates between `low` and the hint, at the buffer's end.
     pub(crate) back: u16,
     pub(crate) hint: i32,
@@ -91,6 +94,7 @@ impl OpenWindow {
         capacity: 0,
         front: 0,
         at_hint: 0,
+        counted: 0,
         back: 0,
         hint: 0,
         hint_ties: Ties::NONE,
