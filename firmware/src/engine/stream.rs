@@ -840,7 +840,7 @@ struct Segment<'a> {
 /// scan the tiers are only two: `p >= hint` goes to the front, below it to
 /// the back (pixels equal to the hint or to `low` stay individual entries;
 /// only a compaction gathers them into tie buckets, see `select.rs`).
-#[inline(never)]
+#[inline(always)]
 fn scan<S: Steps, const CHECK: bool>(
     window: &mut OpenWindow,
     entries: &mut [Entry],
