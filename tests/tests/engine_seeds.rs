@@ -1,0 +1,291 @@
+//! The engine's speed paths against the reference, on frame sequences made
+//! to drive each of them: a window's admission threshold starts from its
+//! previous frames' cutoff (its *seed*, `engine/seed.rs`), and a seed that is
+//! too low fills the candidate buffer (compaction), one that is too high
+//! leaves out a pixel the rule needs (the window is computed again from the
+//! row history: a rescan), and one that is right settles the window early
+//! (strict admission). Results never depend on the seed: every frame is
+//! checked bit for bit against the reference, and the engine's counters
+//! show that each path ran.
+//!
+//! Frames go in as whole rows (the engine's whole-row path for windows that
+//! do not overlap) and in odd chunks (its general path), and both must agree
+//! with the reference.
+
+use brightpix::engine_runner::EngineBuffers;
+use brightpix::reference::Reference;
+use brightpix_firmware::engine::{Engine, EngineStats, SubapertureResult};
+use brightpix_protocol::{Camera, LevelFilter, SelectionRule, SubapertureWindow};
+use brightpix_tests::{Case, PixelCounts};
+
+/// A small deterministic generator (xorshift64*), so the sequences need no
+/// random-number crate and stay the same on every machine.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
+    }
+    /// Uniform in [0, 1).
+    fn unit(&mut self) -> f64 {
+        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+const SIDE: u16 = 12;
+const ACROSS: u16 = 3;
+
+fn grid() -> Vec<SubapertureWindow> {
+    (0..ACROSS * ACROSS)
+        .map(|k| SubapertureWindow {
+            x: (k % ACROSS) * SIDE,
+            y: (k / ACROSS) * SIDE,
+            width: SIDE,
+            height: SIDE,
+        })
+        .collect()
+}
+
+/// The grid plus windows overlapping it: the general path.
+fn overlapping() -> Vec<SubapertureWindow> {
+    let mut windows = grid();
+    windows.push(SubapertureWindow {
+        x: 6,
+        y: 6,
+        width: SIDE,
+        height: SIDE,
+    });
+    windows.push(SubapertureWindow {
+        x: 18,
+        y: 3,
+        width: 10,
+        height: 14,
+    });
+    windows
+}
+
+fn case(windows: Vec<SubapertureWindow>, rule: SelectionRule, n: u16, filter: bool) -> Case {
+    let camera = Camera {
+        width: SIDE * ACROSS,
+        height: SIDE * ACROSS,
+        bit_depth: 12,
+    };
+    Case {
+        camera,
+        windows,
+        grid: None,
+        background: Some(vec![40 * 16; camera.pixel_count()]),
+        gain: None,
+        threshold: None,
+        rule,
+        pixels: PixelCounts::All(n),
+        level_filter: filter.then_some(LevelFilter { gain_shift: 2 }),
+        reference_slopes: None,
+        min_flux: 0,
+    }
+}
+
+/// What a frame of a sequence looks like: a spot per window of `flux`
+/// (peak counts) at an offset, on a background of 40 counts with uniform
+/// noise of +-`noise`.
+#[derive(Clone, Copy)]
+struct Scene {
+    flux: f64,
+    offset: (f64, f64),
+    noise: f64,
+}
+
+fn frame(camera: Camera, scene: Scene, rng: &mut Rng) -> Vec<u16> {
+    let side = SIDE as f64;
+    let centre = (side - 1.0) / 2.0;
+    let max = camera.max_raw() as f64;
+    (0..camera.height)
+        .flat_map(|y| (0..camera.width).map(move |x| (x, y)))
+        .map(|(x, y)| {
+            let (i, j) = ((x % SIDE) as f64, (y % SIDE) as f64);
+            let (dx, dy) = (i - centre - scene.offset.0, j - centre - scene.offset.1);
+            let spot = scene.flux * (-(dx * dx + dy * dy) / 4.5).exp();
+            let noise = (rng.unit() - 0.5) * 2.0 * scene.noise;
+            (40.0 + spot + noise).round().clamp(0.0, max) as u16
+        })
+        .collect()
+}
+
+/// Sequences that move the cutoff slowly, step it up (seed too low) and
+/// down (seed too high), and flatten it into ties.
+fn scenes() -> Vec<Scene> {
+    let mut out = Vec::new();
+    for t in 0..8 {
+        out.push(Scene {
+            flux: 60.0,
+            offset: (0.1 * t as f64, -0.05 * t as f64),
+            noise: 3.0,
+        });
+    }
+    // Much brighter: last frame's cutoff is far below this one's.
+    out.push(Scene {
+        flux: 600.0,
+        offset: (0.5, 0.0),
+        noise: 3.0,
+    });
+    out.push(Scene {
+        flux: 600.0,
+        offset: (0.6, 0.1),
+        noise: 3.0,
+    });
+    // Much dimmer: the seed is above every pixel but the spot's core.
+    out.push(Scene {
+        flux: 8.0,
+        offset: (-1.0, 1.0),
+        noise: 3.0,
+    });
+    // No noise and no spot: every pixel ties.
+    out.push(Scene {
+        flux: 0.0,
+        offset: (0.0, 0.0),
+        noise: 0.0,
+    });
+    // Back to a spot: the seed from the flat frame is the background.
+    out.push(Scene {
+        flux: 60.0,
+        offset: (0.0, 0.0),
+        noise: 3.0,
+    });
+    out.push(Scene {
+        flux: 60.0,
+        offset: (2.5, -2.5),
+        noise: 0.5,
+    });
+    out
+}
+
+/// Runs a case's sequence through the engine (rows whole, or in chunks of
+/// `chunk` pixels) and the reference; panics at the first difference.
+/// Returns the engine's counters.
+fn run(case: &Case, chunk: Option<usize>, seed: u64) -> EngineStats {
+    let config = case.view();
+    let mut reference = Reference::new(&config).expect("valid configuration");
+    let mut buffers = EngineBuffers::for_config(&config);
+    let mut engine = Engine::new(config, buffers.memory()).expect("valid configuration");
+    let mut rng = Rng(seed);
+    let width = case.camera.width as usize;
+    for (f, scene) in scenes().into_iter().enumerate() {
+        let pixels = frame(case.camera, scene, &mut rng);
+        let mut got: Vec<SubapertureResult> = Vec::new();
+        let step = chunk.unwrap_or(width);
+        for part in pixels.chunks(step) {
+            engine
+                .push(part, &mut |r: SubapertureResult| got.push(r))
+                .expect("pixels are in range");
+        }
+        let want = reference
+            .process_frame(&pixels)
+            .expect("pixels are in range");
+        assert_eq!(want.len(), got.len(), "frame {f}: results");
+        let mut got = got;
+        got.sort_by_key(|r| r.index);
+        for (w, g) in want.iter().zip(&got) {
+            assert_eq!(
+                (w.index, w.slope_x, w.slope_y, w.flux, w.valid),
+                (g.index as usize, g.slope_x, g.slope_y, g.flux, g.valid),
+                "frame {f} ({:?}, N {:?}, chunk {chunk:?}), sub-aperture {}",
+                case.rule,
+                case.pixels,
+                w.index
+            );
+        }
+    }
+    engine.stats()
+}
+
+fn rules() -> [SelectionRule; 4] {
+    [
+        SelectionRule::SubtractNext,
+        SelectionRule::Threshold,
+        SelectionRule::SubtractNextDistinct,
+        SelectionRule::SubtractMean { count: 3 },
+    ]
+}
+
+fn add(total: &mut EngineStats, s: EngineStats) {
+    total.windows += s.windows;
+    total.candidates += s.candidates;
+    total.compactions += s.compactions;
+    total.rescans += s.rescans;
+}
+
+#[test]
+fn every_seed_path_agrees_with_the_reference() {
+    let mut total = EngineStats::default();
+    for rule in rules() {
+        for n in [1, 5, 20, 60] {
+            for filter in [false, true] {
+                if filter && !rule.subtracts() {
+                    continue;
+                }
+                let c = case(grid(), rule, n, filter);
+                add(&mut total, run(&c, None, 7 + n as u64));
+                add(&mut total, run(&c, Some(7), 7 + n as u64));
+            }
+        }
+    }
+    // Each path ran (the counters are speed-only state: if a change to the
+    // seeds stopped driving a path, this test would no longer test it).
+    assert!(total.rescans > 0, "no window was rescanned: {total:?}");
+    assert!(total.compactions > 0, "no buffer was compacted: {total:?}");
+    assert!(total.windows > 0);
+}
+
+#[test]
+fn overlapping_windows_take_the_general_path_and_agree() {
+    let mut total = EngineStats::default();
+    for rule in rules() {
+        for n in [3, 20] {
+            let c = case(overlapping(), rule, n, rule.subtracts());
+            add(&mut total, run(&c, None, 99));
+            add(&mut total, run(&c, Some(13), 99));
+        }
+    }
+    assert!(total.rescans > 0, "no window was rescanned: {total:?}");
+}
+
+/// A seed that is right most of the time: the candidates held stay close to
+/// N (the point of seeding), far below the window's pixel count.
+#[test]
+fn a_steady_spot_keeps_few_candidates() {
+    let c = case(grid(), SelectionRule::SubtractNext, 20, false);
+    let config = c.view();
+    let mut buffers = EngineBuffers::for_config(&config);
+    let mut engine = Engine::new(config, buffers.memory()).unwrap();
+    let mut rng = Rng(3);
+    let steady = Scene {
+        flux: 200.0,
+        offset: (0.3, -0.2),
+        noise: 1.0,
+    };
+    for _ in 0..4 {
+        let pixels = frame(c.camera, steady, &mut rng);
+        engine
+            .push(&pixels, &mut |_r: SubapertureResult| {})
+            .unwrap();
+    }
+    let before = engine.stats();
+    for _ in 0..8 {
+        let pixels = frame(c.camera, steady, &mut rng);
+        engine
+            .push(&pixels, &mut |_r: SubapertureResult| {})
+            .unwrap();
+    }
+    let after = engine.stats();
+    let windows = after.windows - before.windows;
+    let held = after.candidates - before.candidates;
+    let per_window = held as f64 / windows as f64;
+    let pixels = (SIDE * SIDE) as f64;
+    assert!(
+        per_window < pixels / 3.0,
+        "{per_window:.1} candidates per window of {pixels} pixels at N = 20"
+    );
+}
