@@ -185,7 +185,6 @@ fn run(case: &Case, chunk: Option<usize>, seed: u64) -> EngineStats {
             .process_frame(&pixels)
             .expect("pixels are in range");
         assert_eq!(want.len(), got.len(), "frame {f}: results");
-        let mut got = got;
         got.sort_by_key(|r| r.index);
         for (w, g) in want.iter().zip(&got) {
             assert_eq!(
