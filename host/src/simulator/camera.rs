@@ -8,7 +8,7 @@
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
-use super::{stream_rng, SimError, SimulationParams, Simulator};
+use super::{stream_rng, SimError, SimulationParams, Simulator, SpotFrame};
 
 /// One window of the camera and what its sub-aperture sees.
 #[derive(Clone, Debug)]
@@ -28,6 +28,11 @@ pub struct CameraFrame {
     /// Per window, the centre of gravity of its noiseless image (pixels from
     /// the window's centre, `[x, y]`).
     pub true_slopes: Vec<[f64; 2]>,
+    /// Per window, the G-tilt of its lenslet's wavefront (the slope an
+    /// untruncated, noiseless spot would give; [`SpotFrame::phase_slope`]).
+    ///
+    /// [`SpotFrame::phase_slope`]: super::SpotFrame::phase_slope
+    pub phase_slopes: Vec<[f64; 2]>,
 }
 
 /// The camera simulator (immutable, `Sync`).
@@ -78,6 +83,54 @@ impl CameraSimulator {
     /// `index * windows + k` of its own simulator: independent turbulence
     /// and noise per window and frame.
     pub fn frame(&self, seed: u64, index: u64) -> CameraFrame {
+        let count = self.windows.len() as u64;
+        self.assemble(seed, index, &mut |k, sim| {
+            sim.subaperture_frame(index * count + k as u64, seed)
+        })
+    }
+
+    /// Frame `index` of run `seed` through a given atmosphere: `opd(k, sim,
+    /// buffer)` fills `buffer` with window `k`'s lenslet optical path
+    /// difference (metres, on `sim`'s [`Simulator::phase_sampling`] grid,
+    /// row-major `[y][x]`), e.g. cut from a layered atmosphere in the
+    /// wavefront sensor's direction. Photon, read and background noise come
+    /// from the same streams as [`CameraSimulator::frame`]'s.
+    pub fn frame_from_opds(
+        &self,
+        seed: u64,
+        index: u64,
+        opd: &mut dyn FnMut(usize, &Simulator, &mut Vec<f64>),
+    ) -> CameraFrame {
+        let count = self.windows.len() as u64;
+        let mut ws = super::Workspace::default();
+        let mut buffer = Vec::new();
+        self.assemble(seed, index, &mut |k, sim| {
+            let (n, _) = sim.phase_sampling();
+            buffer.clear();
+            buffer.resize(n * n, 0.0);
+            opd(k, sim, &mut buffer);
+            sim.frame_from_opd(&mut ws, &buffer, index * count + k as u64, seed)
+        })
+    }
+
+    /// The windows (top-left corner on the camera, and their simulators).
+    pub fn windows(&self) -> impl Iterator<Item = (usize, usize, &Simulator)> {
+        self.windows.iter().map(|(x, y, sim)| (*x, *y, sim))
+    }
+
+    /// The camera's width and height (pixels).
+    pub fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    /// Frame `index`: the pixels outside the windows, then each window's
+    /// spot from `spot(k, simulator)` pasted in.
+    fn assemble(
+        &self,
+        seed: u64,
+        index: u64,
+        spot: &mut dyn FnMut(usize, &Simulator) -> SpotFrame,
+    ) -> CameraFrame {
         let mut rng = stream_rng(seed, index, 2);
         let raw: Vec<u16> = (0..self.width * self.height)
             .map(|_| {
@@ -90,16 +143,17 @@ impl CameraSimulator {
         let mut frame = CameraFrame {
             raw,
             true_slopes: Vec::with_capacity(self.windows.len()),
+            phase_slopes: Vec::with_capacity(self.windows.len()),
         };
-        let count = self.windows.len() as u64;
         for (k, (x0, y0, sim)) in self.windows.iter().enumerate() {
-            let spot = sim.subaperture_frame(index * count + k as u64, seed);
+            let spot = spot(k, sim);
             let size = spot.size;
             for y in 0..size {
                 let row = (y0 + y) * self.width + x0;
                 frame.raw[row..row + size].copy_from_slice(&spot.raw[y * size..(y + 1) * size]);
             }
             frame.true_slopes.push(spot.true_slope);
+            frame.phase_slopes.push(spot.phase_slope);
         }
         frame
     }

@@ -96,6 +96,7 @@
 //! depend on threads, and runs that differ only in noise parameters share
 //! the same turbulence (common random numbers).
 
+pub mod atmosphere;
 pub mod camera;
 mod optics;
 mod params;
@@ -390,6 +391,17 @@ impl Simulator {
         ws.phase.extend(opd_m.iter().map(|v| v * k));
         let phase_slope = self.phase_gtilt(&ws.phase);
         self.image_and_camera(ws, frame_index, seed, phase_slope)
+    }
+
+    /// The G-tilt (pixels, `[x, y]`) of a lenslet optical path difference
+    /// given as for [`Simulator::frame_from_opd`]: what
+    /// [`SpotFrame::phase_slope`] reports for it.
+    pub fn opd_gtilt_px(&self, opd_m: &[f64]) -> [f64; 2] {
+        let ns = self.geometry.pupil_array;
+        assert_eq!(opd_m.len(), ns * ns, "OPD must be {ns}x{ns} samples");
+        let k = 2.0 * std::f64::consts::PI / self.geometry.effective_wavelength_m;
+        let phase: Vec<f64> = opd_m.iter().map(|v| v * k).collect();
+        self.phase_gtilt(&phase)
     }
 
     fn image_and_camera(

@@ -168,6 +168,7 @@ pub(crate) struct ScreenGenerator {
 #[derive(Default)]
 pub(crate) struct ScreenBuffers {
     spec: Vec<Complex<f64>>,
+    spec_low: Vec<Complex<f64>>,
     cols: Vec<Complex<f64>>,
     scratch: Vec<Complex<f64>>,
     v: Vec<Complex<f64>>,
@@ -253,25 +254,76 @@ impl ScreenGenerator {
         bufs: &mut ScreenBuffers,
         out: &mut [f64],
     ) {
+        self.generate_split(rng, bufs, out, None);
+    }
+
+    /// As [`generate`](Self::generate) (the same random numbers give the
+    /// same `out`), and with `low = Some((buffer, cutoff))` also the same
+    /// screen's low-pass part in `buffer`: the FFT cells with `|k_x|` and
+    /// `|k_y|` below `cutoff` (cycles per sample, e.g. half a sample per
+    /// sub-aperture for a Shack-Hartmann's Nyquist frequency) and every
+    /// subharmonic. `out - buffer` is then the high-pass part.
+    pub(crate) fn generate_split<R: Rng + ?Sized>(
+        &self,
+        rng: &mut R,
+        bufs: &mut ScreenBuffers,
+        out: &mut [f64],
+        low: Option<(&mut [f64], f64)>,
+    ) {
         let (n, p) = (self.n, self.patch);
         assert_eq!(out.len(), p * p);
         bufs.spec.resize(n * n, Complex::default());
-        bufs.cols.resize(p * n, Complex::default());
-        let scratch_len = self.ifft.get_inplace_scratch_len();
-        bufs.scratch.resize(scratch_len, Complex::default());
-
         for (s, &a) in bufs.spec.iter_mut().zip(&self.amp) {
             let re: f64 = StandardNormal.sample(rng);
             let im: f64 = StandardNormal.sample(rng);
             *s = Complex::new(a * re, a * im);
         }
+        let mut outs: Vec<&mut [f64]> = vec![out];
+        if let Some((low, cutoff)) = low {
+            assert_eq!(low.len(), p * p);
+            bufs.spec_low.resize(n * n, Complex::default());
+            let limit = cutoff * n as f64;
+            for ky in 0..n {
+                let fy = (super::optics::signed_index(ky, n) as f64).abs();
+                for kx in 0..n {
+                    let fx = (super::optics::signed_index(kx, n) as f64).abs();
+                    let k = ky * n + kx;
+                    bufs.spec_low[k] = if fx < limit && fy < limit {
+                        bufs.spec[k]
+                    } else {
+                        Complex::default()
+                    };
+                }
+            }
+            let mut spec_low = std::mem::take(&mut bufs.spec_low);
+            self.transform_patch(&mut spec_low, bufs, low);
+            bufs.spec_low = spec_low;
+            outs.push(low);
+        }
+        let mut spec = std::mem::take(&mut bufs.spec);
+        self.transform_patch(&mut spec, bufs, outs[0]);
+        bufs.spec = spec;
+        self.add_subharmonics(rng, bufs, &mut outs);
+    }
+
+    /// The inverse transform of `spec` (destroyed) on the patch, using the
+    /// other buffers of `bufs`.
+    fn transform_patch(
+        &self,
+        spec: &mut [Complex<f64>],
+        bufs: &mut ScreenBuffers,
+        out: &mut [f64],
+    ) {
+        let (n, p) = (self.n, self.patch);
+        bufs.cols.resize(p * n, Complex::default());
+        let scratch_len = self.ifft.get_inplace_scratch_len();
+        bufs.scratch.resize(scratch_len, Complex::default());
         // Inverse transform along x (every row), then along y for the
         // columns x < patch only.
-        self.ifft
-            .process_with_scratch(&mut bufs.spec, &mut bufs.scratch);
+        self.ifft.process_with_scratch(spec, &mut bufs.scratch);
         for x in 0..p {
             for y in 0..n {
-                bufs.cols[x * n + y] = bufs.spec[y * n + x];
+                bufs.cols[x * n + y] = spec[y * n + x];
             }
         }
         self.ifft
@@ -281,9 +333,17 @@ impl ScreenGenerator {
                 out[y * p + x] = bufs.cols[x * n + y].re;
             }
         }
+    }
 
-        // Subharmonics: sum_l sum_a e_{l,a}(x) V_{l,a}(y) with
-        // V_{l,a}(y) = sum_b c_{l,a,b} e_{l,b}(y).
+    /// Subharmonics: `sum_l sum_a e_{l,a}(x) V_{l,a}(y)` with `V_{l,a}(y) =
+    /// sum_b c_{l,a,b} e_{l,b}(y)`, added to every one of `outs`.
+    fn add_subharmonics<R: Rng + ?Sized>(
+        &self,
+        rng: &mut R,
+        bufs: &mut ScreenBuffers,
+        outs: &mut [&mut [f64]],
+    ) {
+        let p = self.patch;
         let levels = self.sub_amp.len();
         bufs.v.resize(3 * p, Complex::default());
         for l in 0..levels {
@@ -304,13 +364,15 @@ impl ScreenGenerator {
                     }
                 }
             }
-            for y in 0..p {
-                let row = &mut out[y * p..(y + 1) * p];
-                for a in 0..3 {
-                    let vy = bufs.v[a * p + y];
-                    let ea = &basis[a * p..(a + 1) * p];
-                    for (o, e) in row.iter_mut().zip(ea) {
-                        *o += (vy * e).re;
+            for out in outs.iter_mut() {
+                for y in 0..p {
+                    let row = &mut out[y * p..(y + 1) * p];
+                    for a in 0..3 {
+                        let vy = bufs.v[a * p + y];
+                        let ea = &basis[a * p..(a + 1) * p];
+                        for (o, e) in row.iter_mut().zip(ea) {
+                            *o += (vy * e).re;
+                        }
                     }
                 }
             }
