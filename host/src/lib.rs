@@ -2,6 +2,7 @@
 pub mod bench;
 pub mod cli;
 pub mod config_file;
+pub mod endtoend;
 pub mod engine_runner;
 pub mod evaluation;
 pub mod io;

@@ -6,6 +6,7 @@ mod check_config;
 mod configure;
 mod demo;
 mod devices;
+mod endtoend;
 mod paper;
 mod process;
 mod simulate_device;
@@ -34,6 +35,7 @@ enum Command {
     Process(process::ProcessArgs),
     Bench(bench::BenchArgs),
     Paper(paper::PaperArgs),
+    Endtoend(endtoend::EndToEndArgs),
     Tune(tune::TuneArgs),
     Demo(demo::DemoArgs),
     Devices(devices::DevicesArgs),
@@ -63,6 +65,7 @@ pub fn main() -> ExitCode {
         Command::Process(args) => process::run(args),
         Command::Bench(args) => bench::run(args),
         Command::Paper(args) => paper::run(args),
+        Command::Endtoend(args) => endtoend::run(args),
         Command::Tune(args) => tune::run(args),
         Command::Demo(args) => demo::run(args),
         Command::Devices(args) => devices::run(args),

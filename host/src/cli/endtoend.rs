@@ -1,0 +1,399 @@
+//! `brightpix endtoend`: the paper's §3.10, residual wavefront error and
+//! Strehl against N with the device's own slopes.
+
+use crate::config_file::ProcessingConfig;
+use crate::endtoend::{
+    parse_layers, parse_stars, report, EndToEnd, EndToEndResult, RunOptions, Scenario,
+};
+use crate::evaluation::Method;
+use crate::simulator::atmosphere::Atmosphere;
+use crate::simulator::{SimulationParams, SpotModel};
+use anyhow::{anyhow, bail, Context, Result};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::{Path, PathBuf};
+
+/// The end-to-end conditions that `tune --criterion wfe` shares.
+#[derive(Args, Clone, Debug)]
+pub struct EndToEndConditions {
+    /// Guide stars (one wavefront sensor each): RADIUS,ANGLE;... (arcsec, degrees from +x
+    /// towards +y). Default: the paper's (40.2,26.6;40.2,153.4;19.0,288.4).
+    #[arg(long, value_name = "R,A;...", allow_hyphen_values = true)]
+    pub asterism: Option<String>,
+    /// Science target: RADIUS,ANGLE (arcsec, degrees).
+    #[arg(
+        long,
+        default_value = "0,0",
+        value_name = "R,A",
+        allow_hyphen_values = true
+    )]
+    pub science: String,
+    /// Layers: ALTITUDE:FRACTION:WIND_SPEED:WIND_DIRECTION,... (m, share of Cn2 (normalised),
+    /// m/s, degrees the wind blows towards). Default: 0:0.6:7.5:0,500:0.3:10:90,5000:0.1:15:45.
+    #[arg(long, value_name = "LAYERS", allow_hyphen_values = true)]
+    pub layers: Option<String>,
+    /// Multiply every layer's wind speed.
+    #[arg(long, default_value_t = 1.0)]
+    pub wind_scale: f64,
+    /// Wavefront-sensor frame rate (Hz).
+    #[arg(long, default_value_t = 250.0)]
+    pub frame_rate: f64,
+    /// Loop delay: from the sensors' sampling to the science phase the DM corrects (frames).
+    #[arg(long, default_value_t = 2.0)]
+    pub delay: f64,
+    /// Science wavelength (m) of the Strehl ratio (default: H band).
+    #[arg(long, default_value_t = 1.65e-6)]
+    pub science_wavelength: f64,
+    /// DM actuators across (default: sub-apertures across + 1, Fried geometry).
+    #[arg(long)]
+    pub dm_actuators: Option<usize>,
+    /// DM influence function at the neighbouring actuator.
+    #[arg(long, default_value_t = 0.2)]
+    pub dm_coupling: f64,
+    /// Slope noise the fixed reconstructor assumes (px rms).
+    #[arg(long, default_value_t = 0.2)]
+    pub fixed_noise: f64,
+    /// Independent atmosphere episodes scored (>= 2).
+    #[arg(long, default_value_t = 40)]
+    pub episodes: usize,
+    /// Frames per episode (frozen flow within an episode).
+    #[arg(long, default_value_t = 100)]
+    pub episode_frames: usize,
+    /// Episodes on which each rule and N's slope noise is measured for its matched reconstructor.
+    #[arg(long, default_value_t = 1)]
+    pub calibration_episodes: usize,
+}
+
+impl EndToEndConditions {
+    /// Fills `scenario` with these conditions (its atmosphere's r0 and
+    /// outer scale are kept).
+    pub fn apply(&self, scenario: &mut Scenario) -> Result<()> {
+        if let Some(a) = &self.asterism {
+            scenario.guide_stars = parse_stars(a).context("--asterism")?;
+            if scenario.guide_stars.is_empty() {
+                bail!("--asterism: at least one guide star");
+            }
+        }
+        let science = parse_stars(&self.science).context("--science")?;
+        if science.len() != 1 {
+            bail!("--science: one RADIUS,ANGLE");
+        }
+        scenario.science = science[0];
+        if let Some(l) = &self.layers {
+            scenario.atmosphere.layers = parse_layers(l).context("--layers")?;
+        }
+        if !(self.wind_scale.is_finite() && self.wind_scale >= 0.0) {
+            bail!("--wind-scale must be >= 0, got {}", self.wind_scale);
+        }
+        scenario.atmosphere = scenario
+            .atmosphere
+            .clone()
+            .with_wind_scaled(self.wind_scale);
+        scenario.frame_rate_hz = self.frame_rate;
+        scenario.delay_frames = self.delay;
+        scenario.science_wavelength_m = self.science_wavelength;
+        scenario.dm_actuators_across = self.dm_actuators;
+        scenario.dm_coupling = self.dm_coupling;
+        scenario.fixed_noise_px = self.fixed_noise;
+        if self.episodes < 2 {
+            bail!(
+                "--episodes {}: at least 2 for a standard error",
+                self.episodes
+            );
+        }
+        if self.episode_frames == 0 {
+            bail!("--episode-frames must be at least 1");
+        }
+        if self.calibration_episodes == 0 {
+            bail!("--calibration-episodes must be at least 1");
+        }
+        Ok(())
+    }
+}
+
+#[derive(Args)]
+#[command(
+    about = "End to end (paper §3.10): on-axis residual wavefront error and Strehl against N, open-loop MOAO through a layered atmosphere, with the engine's own slopes",
+    after_help = "Each guide star's wavefront sensor looks through frozen-flow von Kármán layers in its own direction;\n\
+its camera frames (the simulator's spots and noise) go through the streaming engine with each rule and N;\n\
+a tomographic reconstructor (least squares on the layers, regularised by their von Kármán covariance)\n\
+drives a DM on the science path in open loop, `--delay` frames later. Two reconstructors: matched (each\n\
+rule and N its own measured slope noise) and fixed (--fixed-noise for all). Writes NAME.csv, NAME.md\n\
+(summary, assumptions, error budget), NAME.svg/png (WFE), NAME-strehl.svg/png, NAME-budget.svg/png.\n\
+Defaults: the paper's CANARY (examples/canary-vignetted.toml: 36 sub-apertures of 16x16 at 0.22\",\n\
+640 nm, 200 photons, 2 e-, 250 Hz; r0 12.5 cm, 60/30/10% at 0/0.5/5 km) and what it leaves open.\n\n\
+Examples:\n  brightpix endtoend --out e2e\n  brightpix endtoend --out e2e --quick\n  brightpix endtoend --out e2e --outer-scale 10 --wind-scale 2 --name l0-10\n  brightpix endtoend --config my.toml --asterism '30,0;30,120;30,240' --photons 500 --read-noise 0.5 --out mine"
+)]
+pub struct EndToEndArgs {
+    /// Output directory (created).
+    #[arg(long)]
+    out: PathBuf,
+    /// Name of the outputs (`OUT/NAME.csv`, ...).
+    #[arg(long, default_value = "endtoend")]
+    name: String,
+    /// Wavefront-sensor configuration (TOML): camera, windows, background (the rule and N are
+    /// varied). Default: examples/canary-vignetted.toml (built in).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    #[command(flatten)]
+    conditions: EndToEndConditions,
+    /// Fried parameter r0 (m) at 500 nm.
+    #[arg(long, default_value_t = 0.125)]
+    r0: f64,
+    /// Outer scale L0 (m); `inf` for Kolmogorov.
+    #[arg(long, default_value_t = 30.0)]
+    outer_scale: f64,
+    /// Detected photons per fully lit sub-aperture per frame.
+    #[arg(long, default_value_t = 200.0)]
+    photons: f64,
+    /// Read noise (e- rms).
+    #[arg(long, default_value_t = 2.0)]
+    read_noise: f64,
+    /// Camera gain (e- per count).
+    #[arg(long, default_value_t = 1.0)]
+    gain: f64,
+    /// Detector pixel scale (arcsec/pixel).
+    #[arg(long, default_value_t = 0.22)]
+    pixel_scale: f64,
+    /// WFS wavelength (m).
+    #[arg(long, default_value_t = 640e-9)]
+    wavelength: f64,
+    /// Airy diameter of the lenslet spot (arcsec).
+    #[arg(long, default_value_t = 0.7)]
+    airy: f64,
+    /// effective-wavelength, wfs-wavelength or wfs-wavelength-blurred (see `tune --help`).
+    #[arg(long, default_value = "effective-wavelength")]
+    spot_model: String,
+    /// Telescope diameter (m).
+    #[arg(long, default_value_t = 4.2)]
+    telescope: f64,
+    /// Central obscuration diameter (m).
+    #[arg(long, default_value_t = 1.0)]
+    obscuration: f64,
+    /// Sub-apertures across the pupil (default: the grid's larger side).
+    #[arg(long)]
+    subapertures_across: Option<usize>,
+    /// Rules: comma-separated subtract-next, threshold, subtract-next-distinct, subtract-mean:M.
+    #[arg(long, default_value = "subtract-next,threshold")]
+    rules: String,
+    /// N values, comma-separated (N at or above the window's pixels: all pixels, always added).
+    #[arg(
+        long,
+        default_value = "1,2,3,4,5,6,8,10,12,14,16,18,20,25,30,40,50,60,80,100,128,160,200"
+    )]
+    pixels: String,
+    /// Seed of the random streams (a run is reproducible from it).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// A small smoke run (4 episodes of 20 frames, fewer N).
+    #[arg(long)]
+    quick: bool,
+}
+
+/// Parses a rule list.
+pub fn parse_rules(text: &str) -> Result<Vec<Method>> {
+    text.split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            Ok(match s {
+                "subtract-next" => Method::SUBTRACT_NEXT,
+                "threshold" => Method::THRESHOLD,
+                "subtract-next-distinct" => Method::SUBTRACT_NEXT_DISTINCT,
+                _ => match s.strip_prefix("subtract-mean:") {
+                    Some(m) => {
+                        let m: u16 = m.parse().with_context(|| format!("rule {s:?}"))?;
+                        if m == 0 {
+                            bail!("rule {s:?}: M must be at least 1");
+                        }
+                        Method::subtract_mean(m)
+                    }
+                    None => bail!(
+                        "unknown rule {s:?}: one of subtract-next, threshold, subtract-next-distinct, subtract-mean:M"
+                    ),
+                },
+            })
+        })
+        .collect()
+}
+
+fn parse_pixels(text: &str) -> Result<Vec<usize>> {
+    let v: Vec<usize> = text
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            let n: usize = s.parse().with_context(|| format!("--pixels {s:?}"))?;
+            if n == 0 {
+                bail!("--pixels: N must be at least 1");
+            }
+            Ok(n)
+        })
+        .collect::<Result<_>>()?;
+    if v.is_empty() {
+        bail!("--pixels: no N given");
+    }
+    Ok(v)
+}
+
+/// Checks an output directory and a name before any work.
+pub fn check_out(out: &Path, name: &str) -> Result<()> {
+    if out.exists() && !out.is_dir() {
+        bail!("--out {}: exists and is not a directory", out.display());
+    }
+    if name.is_empty() || name.contains(['/', '\\']) || name.starts_with('.') {
+        bail!("--name {name:?}: must be a plain file name");
+    }
+    std::fs::create_dir_all(out).with_context(|| format!("--out {}", out.display()))?;
+    Ok(())
+}
+
+fn scenario(args: &EndToEndArgs) -> Result<Scenario> {
+    let mut s = Scenario::canary();
+    if let Some(path) = &args.config {
+        s.config = ProcessingConfig::load(path)?;
+    }
+    let background = s.config.background.as_ref().map_or(0.0, |b| {
+        b.iter().map(|&v| v as f64).sum::<f64>() / b.len().max(1) as f64 / 16.0
+    });
+    let spot_model = SpotModel::parse(&args.spot_model).ok_or_else(|| {
+        anyhow!(
+            "--spot-model {:?}: one of effective-wavelength, wfs-wavelength, wfs-wavelength-blurred",
+            args.spot_model
+        )
+    })?;
+    s.wfs = SimulationParams {
+        telescope_diameter_m: args.telescope,
+        pixel_scale_arcsec: args.pixel_scale,
+        wavelength_m: args.wavelength,
+        airy_diameter_arcsec: args.airy,
+        spot_model,
+        photons: args.photons,
+        read_noise_e: args.read_noise,
+        gain_e_per_count: args.gain,
+        background,
+        ..SimulationParams::canary()
+    };
+    s.obscuration_m = args.obscuration;
+    s.across = args.subapertures_across;
+    s.atmosphere = Atmosphere {
+        r0_m: args.r0,
+        outer_scale_m: args.outer_scale,
+        ..Atmosphere::canary()
+    };
+    args.conditions.apply(&mut s)?;
+    Ok(s)
+}
+
+/// Runs an end-to-end scenario with a progress bar, writes its CSV, plots
+/// and summary into `out` as `name.*`; returns the result and the summary.
+pub fn run_and_write(
+    e2e: &EndToEnd,
+    options: &RunOptions,
+    out: &Path,
+    name: &str,
+    title: &str,
+) -> Result<(EndToEndResult, String)> {
+    let lines = e2e.scenario.describe(&e2e.lenslets, &e2e.dm);
+    for l in &lines {
+        eprintln!("brightpix: endtoend: {l}");
+    }
+    let combos = e2e.combos(&options.methods, &options.pixels);
+    let frames = options.frames_per_episode * (options.episodes + options.calibration_episodes);
+    eprintln!(
+        "brightpix: endtoend: {} rule/N combinations x {} sensors on {} frames ({} episodes of {}, {} calibration); screens {} samples across",
+        combos.len(),
+        e2e.scenario.guide_stars.len(),
+        frames,
+        options.episodes,
+        options.frames_per_episode,
+        options.calibration_episodes,
+        e2e.screen_sides()
+            .iter()
+            .map(|(n, d)| format!("{n} ({:.1} m)", *n as f64 * d))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    let bar = ProgressBar::new(frames as u64);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "endtoend [{elapsed_precise}] {wide_bar} {pos}/{len} frames eta {eta}",
+        )
+        .expect("valid template"),
+    );
+    let result = e2e.run(options, &|n| bar.inc(n as u64))?;
+    bar.finish_and_clear();
+    let t = &result.timing;
+    let run_line = format!(
+        "seed {}, {} episodes of {} frames + {} calibration; {:.0} s: screens {:.0} s, sensor frames {:.0} s, science path {:.0} s, scoring {:.0} s (thread time: engine {:.0} s, reconstruction and residuals {:.0} s) on {} threads",
+        options.seed,
+        options.episodes,
+        options.frames_per_episode,
+        options.calibration_episodes,
+        t.total,
+        t.screens,
+        t.wfs_frames,
+        t.science,
+        t.scoring,
+        t.engine_cpu,
+        t.reconstruction_cpu,
+        rayon::current_num_threads()
+    );
+    let summary = report::summary(&result, &lines, &run_line);
+    let csv_path = out.join(format!("{name}.csv"));
+    std::fs::write(&csv_path, report::csv(&result))
+        .with_context(|| csv_path.display().to_string())?;
+    let md_path = out.join(format!("{name}.md"));
+    std::fs::write(&md_path, &summary).with_context(|| md_path.display().to_string())?;
+    let plots = report::plots(&result, &out.join(name), title)?;
+    eprintln!(
+        "brightpix: endtoend: wrote {}, {}, {}",
+        csv_path.display(),
+        md_path.display(),
+        plots
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    Ok((result, summary))
+}
+
+pub fn run(args: EndToEndArgs) -> Result<()> {
+    // Everything checked before any work.
+    let methods = parse_rules(&args.rules).context("--rules")?;
+    if methods.is_empty() {
+        bail!("--rules: no rule given");
+    }
+    let mut pixels = parse_pixels(&args.pixels)?;
+    check_out(&args.out, &args.name)?;
+    let scenario = scenario(&args)?;
+    let (episodes, frames, calibration) = if args.quick {
+        (4, 20, 1)
+    } else {
+        (
+            args.conditions.episodes,
+            args.conditions.episode_frames,
+            args.conditions.calibration_episodes,
+        )
+    };
+    if args.quick {
+        pixels.retain(|n| [1, 4, 10, 20, 50].contains(n));
+    }
+    let e2e = EndToEnd::new(scenario, frames)?;
+    pixels.push(e2e.window_pixels());
+    let options = RunOptions {
+        seed: args.seed,
+        episodes,
+        frames_per_episode: frames,
+        calibration_episodes: calibration,
+        methods,
+        pixels,
+    };
+    let (_, summary) = run_and_write(&e2e, &options, &args.out, &args.name, "end to end")?;
+    print!("{summary}");
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests;

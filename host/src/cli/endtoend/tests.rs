@@ -1,0 +1,103 @@
+use super::super::{Cli, Command};
+use crate::endtoend::{EndToEnd, Scenario};
+use crate::evaluation::Method;
+use clap::Parser;
+use std::path::PathBuf;
+
+fn run(argv: &[&str]) -> anyhow::Result<()> {
+    match Cli::try_parse_from(argv).expect("valid arguments").command {
+        Command::Endtoend(a) => super::run(a),
+        Command::Process(a) => super::super::process::run(a),
+        _ => unreachable!(),
+    }
+}
+
+fn temp(tag: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("brightpix-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+#[test]
+fn reconstructor_slopes_are_bit_identical_to_brightpix_process() {
+    let dir = temp("e2e-process");
+    let e2e = EndToEnd::new(Scenario::canary(), 3).unwrap();
+    let data = e2e.simulate_episode(11, 0, 0);
+    let frames = data.frames;
+    let n_sub = e2e.lenslets.subapertures.len();
+    for (method, n) in [
+        (Method::SUBTRACT_NEXT, 20),
+        (Method::THRESHOLD, 7),
+        (Method::SUBTRACT_NEXT, 256),
+    ] {
+        let ints = e2e.engine_slopes(&data, method, n).unwrap();
+        // What the reconstructor is fed.
+        let fed = e2e.slope_matrix(&ints, frames);
+        let config = e2e.engine_config(method, n);
+        let toml = config.save(&dir, "wfs").unwrap();
+        for (w, raw) in data.raw.iter().enumerate() {
+            let cube = dir.join(format!("frames-{w}.npy"));
+            crate::io::write_array(&cube, &[frames, 112, 112], raw).unwrap();
+            let out = dir.join(format!("slopes-{w}.npy"));
+            let _ = std::fs::remove_file(&out);
+            run(&[
+                "brightpix",
+                "process",
+                "--config",
+                toml.to_str().unwrap(),
+                "--frames",
+                cube.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+            ])
+            .unwrap();
+            let processed = crate::io::read_array(&out).unwrap();
+            assert_eq!(processed.shape, vec![frames, n_sub, 2]);
+            for t in 0..frames {
+                for k in 0..n_sub {
+                    for a in 0..2 {
+                        let p = processed.data[(t * n_sub + k) * 2 + a];
+                        let f = fed[((w * n_sub + k) * 2 + a, t)];
+                        assert_eq!(
+                            p.to_bits(),
+                            f.to_bits(),
+                            "{method:?} N={n} sensor {w} frame {t} window {k}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn bad_arguments_fail_before_any_work() {
+    let dir = temp("e2e-args");
+    let out = dir.join("out");
+    let o = out.to_str().unwrap();
+    let started = std::time::Instant::now();
+    for (extra, expected) in [
+        (vec!["--episodes", "1"], "at least 2"),
+        (vec!["--rules", "nope"], "unknown rule"),
+        (vec!["--pixels", "0"], "at least 1"),
+        (vec!["--layers", "0:1:5"], "ALTITUDE"),
+        (vec!["--asterism", "40"], "RADIUS,ANGLE"),
+        (vec!["--delay=-1"], "delay"),
+        (vec!["--episode-frames", "100000"], "shorter episodes"),
+    ] {
+        let mut argv = vec!["brightpix", "endtoend", "--out", o];
+        argv.extend(extra.iter().copied());
+        let e = run(&argv).unwrap_err();
+        assert!(format!("{e:#}").contains(expected), "{extra:?}: {e:#}");
+    }
+    let file = dir.join("file");
+    std::fs::write(&file, "x").unwrap();
+    let e = run(&["brightpix", "endtoend", "--out", file.to_str().unwrap()]).unwrap_err();
+    assert!(e.to_string().contains("not a directory"), "{e}");
+    // Nothing was simulated and nothing written.
+    assert!(!out.exists() || std::fs::read_dir(&out).unwrap().next().is_none());
+    assert!(started.elapsed().as_secs() < 20);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
