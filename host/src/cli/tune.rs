@@ -128,6 +128,14 @@ pub struct TuneArgs {
     /// Seed of the random streams.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// What the tuned N minimises: r (the paper's slope error R, per class of sub-apertures) or
+    /// wfe (the on-axis residual wavefront error of an end-to-end open-loop MOAO simulation
+    /// through a layered atmosphere, one N for every window; NGS only; see `brightpix endtoend`
+    /// and the options below).
+    #[arg(long, default_value = "r")]
+    criterion: String,
+    #[command(flatten)]
+    endtoend: super::endtoend::EndToEndConditions,
 }
 
 fn parse_launch(text: &str) -> Result<[f64; 2]> {
@@ -530,10 +538,21 @@ fn tuned_block(setup: &Setup, result: &TuneResult, lines: &[String]) -> Result<S
 }
 
 pub fn run(args: TuneArgs) -> Result<()> {
+    let wfe = match args.criterion.as_str() {
+        "r" => false,
+        "wfe" => true,
+        other => bail!("--criterion {other:?}: one of r, wfe"),
+    };
+    if wfe && args.lgs.is_some() {
+        bail!("--criterion wfe: the end-to-end simulation models natural guide stars only (drop --lgs)");
+    }
     let setup = setup(&args)?;
     let lines = assumptions(&setup, &args);
     for l in &lines {
         eprintln!("brightpix: tune: {l}");
+    }
+    if wfe {
+        return wfe_tune::run(&args, &setup, &lines);
     }
     let planned = plan(&setup.config, &setup.conditions, &setup.options)?;
     let total_jobs: usize = planned
@@ -765,6 +784,8 @@ fn plot_classes(result: &TuneResult, axis: Axis, stem: &Path) -> Result<Vec<Path
         (1000, 560),
     )
 }
+
+mod wfe_tune;
 
 #[cfg(test)]
 mod tests;
