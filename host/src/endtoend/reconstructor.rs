@@ -2,11 +2,17 @@
 //!
 //! ## Layer model
 //! Each turbulent layer's optical path difference is modelled as a bilinear
-//! interpolation of values on a square lattice of nodes of the lenslet pitch
-//! `d`, aligned so that the ground layer's nodes are the sub-apertures'
-//! corners (Fried geometry), and covering every point any wavefront sensor
-//! or the science path sees at that altitude. Nodes that no measurement and
-//! no science point touches are left out.
+//! interpolation of values on a square lattice of nodes of half the lenslet
+//! pitch `d` ([`NODES_PER_SUBAPERTURE`]), aligned so that the ground
+//! layer's nodes include the sub-apertures' corners (Fried geometry), and
+//! covering every point any wavefront sensor or the science path sees at
+//! that altitude. Nodes that no measurement and no science point touches
+//! are left out. The finer lattice matters: on the noiseless single ground
+//! layer of the CANARY pupil, with unaliased slopes, the residual was 165
+//! nm with nodes at pitch `d` and 152 nm at `d/2`, against a 133 nm fitting
+//! error (the rest is what the DM could fit but the lenslets do not see:
+//! the unlit edge and obscuration, frequencies near the cut-off); the
+//! matrices stay small (a few hundred nodes per layer).
 //!
 //! ## Measurement model
 //! A sub-aperture's slope is the G-tilt (the average gradient over its lit

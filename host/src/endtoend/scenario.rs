@@ -172,7 +172,7 @@ impl Scenario {
                 100.0 * dm.coupling
             ),
             format!(
-                "reconstructor: least squares on layer phases (bilinear nodes of pitch d at the true altitudes), regularised by the layers' von Kármán covariance and white slope noise: matched (each rule and N its own measured noise) and fixed ({} px rms for all)",
+                "reconstructor: least squares on layer phases (bilinear nodes of pitch d/2 at the true altitudes), regularised by the layers' von Kármán covariance and white slope noise: matched (each rule and N its own measured noise) and fixed ({} px rms for all)",
                 self.fixed_noise_px
             ),
             format!(
