@@ -1037,6 +1037,37 @@ fn scan_run<S: Steps, const CHECK: bool, const ROOM: bool>(
                 }
             }
         }
+        // Hosts: where room for every pixel is proved and no pixel needs a
+        // range check, branch-free (the branches of a hot segment are
+        // taken at random, which costs a superscalar core more than doing
+        // every pixel): each pixel is written at both tiers' free ends and
+        // kept by advancing the end of the tier it belongs to. Room holds:
+        // before each pixel the free gap is at least one entry, and where
+        // the two writes meet they write the same entry.
+        #[cfg(not(target_arch = "arm"))]
+        if !ROOM && !CHECK {
+            for (k, &r) in raw.iter().enumerate() {
+                let k = start + k;
+                // SAFETY: k < start + raw.len() <= the maps' lengths.
+                let p = unsafe {
+                    calibrate::value_in_run_unchecked::<S>(r, k, background, gain, fixed)
+                };
+                let entry = Entry {
+                    value: p,
+                    position: (base + k as u16) as u32,
+                };
+                let admitted = p >= admit;
+                let upper = p >= hint;
+                // SAFETY: front_end < back_start (see above).
+                unsafe {
+                    front_end.write(entry);
+                    back_start.sub(1).write(entry);
+                    front_end = front_end.add((admitted & upper) as usize);
+                    back_start = back_start.sub((admitted & !upper) as usize);
+                }
+            }
+            break 'scan;
+        }
         #[cfg(not(target_arch = "arm"))]
         for (k, &r) in raw.iter().enumerate() {
             if r > below {
