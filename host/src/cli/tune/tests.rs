@@ -292,3 +292,66 @@ fn tune_from_recorded_frames_measures_the_conditions() {
     device.stop();
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn criterion_wfe_writes_the_n_of_least_residual_wavefront_error() {
+    let dir = temp("tune-wfe");
+    let out = dir.join("out");
+    let argv = [
+        "brightpix",
+        "tune",
+        "--config",
+        EXAMPLE,
+        "--criterion",
+        "wfe",
+        "--episodes",
+        "2",
+        "--episode-frames",
+        "3",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    run(&argv).unwrap();
+    let tuned = tuned_table(&out.join("tuned.toml"));
+    assert_eq!(tuned["criterion"].as_str(), Some("wfe"));
+    // The N written is the CSV's least residual (matched reconstructor).
+    let csv = std::fs::read_to_string(out.join("tuned-endtoend.csv")).unwrap();
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let best = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect::<Vec<_>>())
+        .filter(|f| f[col("reconstructor")] == "matched")
+        .min_by(|a, b| {
+            let v = |f: &Vec<&str>| f[col("wfe_nm")].parse::<f64>().unwrap();
+            v(a).total_cmp(&v(b))
+        })
+        .unwrap();
+    assert_eq!(
+        tuned["N"].as_integer(),
+        Some(best[col("N")].parse::<i64>().unwrap()),
+        "{best:?}"
+    );
+    let config = ProcessingConfig::load(&out.join("tuned.toml")).unwrap();
+    // The dark windows of the 7x7 grid (corners, obscuration) are left out.
+    let dark = tuned["dark_windows"].as_array().unwrap().len();
+    assert!(dark >= 4, "{dark}");
+    assert_eq!(config.windows.len(), 49 - dark);
+    // An LGS is refused: the simulation models natural guide stars.
+    let e = run(&[
+        "brightpix",
+        "tune",
+        "--config",
+        EXAMPLE,
+        "--criterion",
+        "wfe",
+        "--lgs",
+        "sodium:8000",
+        "--out",
+        out.to_str().unwrap(),
+    ])
+    .unwrap_err();
+    assert!(e.to_string().contains("natural guide stars"), "{e}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
