@@ -333,7 +333,7 @@ fn criterion_wfe_writes_the_n_of_least_residual_wavefront_error() {
         Some(best[col("N")].parse::<i64>().unwrap()),
         "{best:?}"
     );
-    let config = ProcessingConfig::load(&out.join("tuned.toml")).unwrap();
+    let config = ProcessingConfig::load(out.join("tuned.toml")).unwrap();
     // The dark windows of the 7x7 grid (corners, obscuration) are left out.
     let dark = tuned["dark_windows"].as_array().unwrap().len();
     assert!(dark >= 4, "{dark}");
