@@ -1326,14 +1326,11 @@ impl Loader {
             ),
             PixelCountZero { index } => (
                 sources.pixels,
-                match config.pixels {
-                    PixelCounts::All(_) => {
-                        "N, the number of pixels to select, is 0; it must be at least 1".to_string()
-                    }
-                    PixelCounts::PerSubaperture(_) => {
-                        format!("N is 0 for sub-aperture {index}; it must be at least 1")
-                    }
-                },
+                format!("N is 0 for sub-aperture {index}; it must be at least 1"),
+            ),
+            PixelCountZeroAll => (
+                sources.pixels,
+                "N, the number of pixels to select, is 0; it must be at least 1".to_string(),
             ),
             PixelCountListLength { .. } => (sources.pixels, e.to_string()),
             MeanCount { .. } => ("selection.mean_count", e.to_string()),
@@ -1699,7 +1696,7 @@ min_flux_counts = 12.5
         let err = invalid(&format!("{BASE}\n[selection]\npixels = 0\n"));
         assert_eq!(
             err.kind,
-            ConfigFileErrorKind::Invalid(ConfigError::PixelCountZero { index: 0 })
+            ConfigFileErrorKind::Invalid(ConfigError::PixelCountZeroAll)
         );
         assert_eq!(err.field.as_deref(), Some("selection.pixels"));
         assert!(
@@ -2221,7 +2218,7 @@ min_flux_counts = 12.5
         let err = c.save(&dir, "bad").unwrap_err();
         assert_eq!(
             err.kind,
-            ConfigFileErrorKind::Invalid(ConfigError::PixelCountZero { index: 0 })
+            ConfigFileErrorKind::Invalid(ConfigError::PixelCountZeroAll)
         );
         assert!(c.save(&dir, "../x").is_err());
     }

@@ -242,6 +242,8 @@ pub enum ConfigError {
         available: usize,
         what: MemoryKind,
     },
+    /// N = 0 for every sub-aperture (a single N, not a per-sub-aperture list).
+    PixelCountZeroAll,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
@@ -335,6 +337,10 @@ impl core::fmt::Display for ConfigError {
                 f,
                 "configuration needs {needed} {what:?} but the engine's memory holds {available}"
             ),
+            PixelCountZeroAll => write!(
+                f,
+                "the number of pixels to select (N) is 0 for every sub-aperture; it must be at least 1"
+            ),
         }
     }
 }
@@ -389,7 +395,7 @@ impl Config<'_> {
             }
         }
         match self.selection.count {
-            PixelCount::All(0) => return Err(ConfigError::PixelCountZero { index: 0 }),
+            PixelCount::All(0) => return Err(ConfigError::PixelCountZeroAll),
             PixelCount::All(_) => {}
             PixelCount::PerSubaperture(list) => {
                 if list.len() != count {

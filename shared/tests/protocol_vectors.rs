@@ -90,7 +90,7 @@ fn header(rule: SelectionRule, pixel_count: PixelCountMode) -> ConfigHeader {
         level_filter: None,
         threshold: None,
         min_flux: 0,
-        background: true,
+        background: Background::Map,
         gain: false,
         reference_slopes: false,
     }
@@ -133,6 +133,16 @@ fn host_messages(payload: &[u8]) -> Vec<(&'static str, HostMessage<'_>)> {
                         SelectionRule::SubtractMean { count: 3 },
                         PixelCountMode::PerSubaperture,
                     )
+                },
+            },
+        ),
+        (
+            "a constant background of -3 counts (-48/16) as one value, no table",
+            HostMessage::ConfigBegin {
+                upload_id: 5,
+                header: ConfigHeader {
+                    background: Background::Constant(-48),
+                    ..header(SelectionRule::SubtractNext, PixelCountMode::All(20))
                 },
             },
         ),
@@ -303,6 +313,7 @@ fn device_messages() -> Vec<(&'static str, DeviceMessage<'static>)> {
                 reset_reason: ResetReason::PowerOn,
                 watchdog_ms: Some(1000),
                 health: Health::default(),
+                config_digest: Some(0x89ab_cdef),
             }),
         ),
         (
@@ -511,6 +522,7 @@ fn device_messages() -> Vec<(&'static str, DeviceMessage<'static>)> {
         },
         ConfigError::WindowOutsideCamera { index: 5 },
         ConfigError::PixelCountZero { index: 6 },
+        ConfigError::PixelCountZeroAll,
         ConfigError::PixelCountListLength {
             expected: 49,
             found: 48,

@@ -741,7 +741,7 @@ fn failed_uploads_leave_the_previous_configuration_running() {
             m => host.send(&m),
         }
     }
-    let crc = brightpix_protocol::wire::tables::tables_crc(&b.view());
+    let crc = brightpix_protocol::wire::tables::config_digest(&b.view());
     verify(
         &mut host,
         &mut device,

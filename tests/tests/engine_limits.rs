@@ -292,7 +292,7 @@ fn invalid_configurations_get_specific_errors() {
     let cases: Vec<(Config<'_>, ConfigError)> = vec![
         (
             config(camera, &windows, SelectionRule::SubtractNext, 0),
-            ConfigError::PixelCountZero { index: 0 },
+            ConfigError::PixelCountZeroAll,
         ),
         (
             Config {

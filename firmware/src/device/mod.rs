@@ -46,11 +46,11 @@ pub mod watchdog;
 use core::convert::Infallible;
 
 use brightpix_protocol::wire::{
-    decode_body, encode, hello_in_body, unstuff, Ack, Capabilities, ConfigHeader, Crc32Digest,
-    DeviceError, DeviceMessage, FrameFault, FrameReader, Health, Hello, HelloReply, HostMessage,
-    MessageKind, PixelSourceKind, Received, ResetReason, SlopeEntry, SlopeList, Status, Table,
-    TablePosition, WireError, CRC32, MAX_BOARD_NAME_LEN, MAX_CHUNK_BYTES, MAX_FRAME_LEN,
-    SLOPES_PER_MESSAGE,
+    decode_body, encode, hello_in_body, unstuff, Ack, Background, Capabilities, ConfigHeader,
+    Crc32Digest, DeviceError, DeviceMessage, FrameFault, FrameReader, Health, Hello, HelloReply,
+    HostMessage, MessageKind, PixelSourceKind, Received, ResetReason, SlopeEntry, SlopeList,
+    Status, Table, TablePosition, WireError, CRC32, MAX_BOARD_NAME_LEN, MAX_CHUNK_BYTES,
+    MAX_FRAME_LEN, SLOPES_PER_MESSAGE,
 };
 use brightpix_protocol::wire::{tables, CapacityKind};
 use embassy_futures::select::{select, select3, Either, Either3};
@@ -119,6 +119,7 @@ struct Core<'d, T, W> {
 
 struct Applying {
     config_id: u32,
+    digest: u32,
 }
 
 struct Upload {
@@ -346,6 +347,7 @@ impl<'d, T: Read + Write, C: PixelSource, W: Watchdog> Device<'d, T, C, W> {
                         }
                         active.header = None;
                         core.counters.config_id = None;
+                        core.counters.config_digest = None;
                         continue;
                     }
                 }
@@ -353,6 +355,7 @@ impl<'d, T: Read + Write, C: PixelSource, W: Watchdog> Device<'d, T, C, W> {
             if let (Some(applying), Some(engine)) = (core.applying.take(), &engine) {
                 let needed = engine.memory_needed();
                 core.counters.config_id = Some(applying.config_id);
+                core.counters.config_digest = Some(applying.digest);
                 log_info!(
                     "device: configuration {=u32} applied ({=usize} sub-apertures)",
                     applying.config_id,
@@ -521,6 +524,7 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
                         self.active ^= 1;
                         self.applying = Some(Applying {
                             config_id: upload_id,
+                            digest: crc32,
                         });
                         return Ok(Next::Rebuild);
                     }
@@ -650,13 +654,17 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
         self.upload = None;
         staging.header = None;
         vet::check_header(&header, &self.capabilities)?;
+        // The digest covers the header too (PROTOCOL.md §7).
+        let mut digest = CRC32.digest();
+        let mut encoded = [0u8; ConfigHeader::MAX_ENCODED_LEN];
+        digest.update(header.encode(&mut encoded));
         self.upload = Some(Upload {
             id: upload_id,
             header,
             next: header
                 .next_table(0)
                 .map(|table| TablePosition { table, offset: 0 }),
-            digest: CRC32.digest(),
+            digest,
         });
         log_debug!("device: upload {=u32} started", upload_id);
         Ok(upload_id)
@@ -712,6 +720,12 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
         let computed = upload.digest.finalize();
         if computed != claimed {
             return Err(DeviceError::UploadCrc { computed, claimed });
+        }
+        if let Background::Constant(value) = header.background {
+            // A constant background arrives as one value: the engine reads a map.
+            if let Some(map) = staging.background.get_mut(..header.camera.pixel_count()) {
+                map.fill(value);
+            }
         }
         let config = staging.config_with(&header).ok_or(DeviceError::Capacity {
             what: CapacityKind::Subapertures,

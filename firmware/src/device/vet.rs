@@ -25,7 +25,7 @@ pub fn check_header(
     }
     let pixels = header.camera.pixel_count();
     let available = capabilities.max_camera_pixels;
-    if (header.background || header.gain) && pixels > available as usize {
+    if (header.background.needs_map() || header.gain) && pixels > available as usize {
         return Err(DeviceError::Capacity {
             what: CapacityKind::CameraPixels,
             needed: saturate(pixels),

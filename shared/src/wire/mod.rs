@@ -70,8 +70,11 @@ pub use tables::{PixelRowsPlan, UploadPlan};
 /// types changing (the [`SCHEMA_HASH`] catches type changes by itself).
 /// Version 2: sessions (`Hello.session`, echoed in `HelloReply`; a
 /// matching `Hello` resets the session state), the reset reason and the
-/// watchdog in `Status`. PROTOCOL.md §12 lists every version.
-pub const PROTOCOL_VERSION: u16 = 2;
+/// watchdog in `Status`. Version 3: the configuration's digest (the
+/// commit CRC covers the header too, and `Status` reports it), a constant
+/// background as a scalar, N = 0 for every sub-aperture as its own fault.
+/// PROTOCOL.md §12 lists every version.
+pub const PROTOCOL_VERSION: u16 = 3;
 
 /// Largest postcard encoding of a message that every frame buffer holds.
 pub const MAX_MESSAGE_LEN: usize = 1024;
@@ -99,7 +102,9 @@ pub const WIRE_CONVENTIONS: &str =
     "brightpix wire 1: frame = COBS(postcard ++ crc32/iso-hdlc LE) ++ 00; \
 tables little-endian: windows = x,y,width,height u16; pixel_counts u16; background i32; gain u16; \
 reference_slopes = x,y i32; table order windows, pixel_counts, background, gain, reference_slopes; \
-commit crc32/iso-hdlc over all table bytes in that order; pixels u16 LE raster order";
+commit crc32/iso-hdlc over the header's postcard encoding then all table bytes in that order \
+(the configuration's digest); a constant background fills the device's background map; \
+pixels u16 LE raster order";
 
 /// A hash of the protocol's schema: the postcard-schema of
 /// `(HostMessage, DeviceMessage)` (every type, field and variant, by name and
@@ -245,10 +250,32 @@ pub struct ConfigHeader {
     pub threshold: Option<i32>,
     /// Validity threshold on the flux, 1/16 count.
     pub min_flux: i64,
+    /// The background: none, a `Background` table, or one value for every
+    /// pixel (no table).
+    pub background: Background,
     /// Which optional tables follow.
-    pub background: bool,
     pub gain: bool,
     pub reference_slopes: bool,
+}
+
+/// The background of a [`ConfigHeader`]. `None` and `Map` encode as the
+/// `false` and `true` of protocol 2's `bool`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub enum Background {
+    /// No background subtracted.
+    None,
+    /// A `Background` table follows (one value per camera pixel).
+    Map,
+    /// The same value (1/16 count) for every pixel; no table. The device
+    /// fills its background map with it.
+    Constant(i32),
+}
+
+impl Background {
+    /// Whether the device needs a background map for it.
+    pub const fn needs_map(&self) -> bool {
+        !matches!(self, Background::None)
+    }
 }
 
 /// N: one value, or a `PixelCounts` table with one per sub-aperture.
@@ -410,6 +437,9 @@ pub struct Status {
     pub watchdog_ms: Option<u32>,
     /// The board's health ([`health`]): what only the board can read.
     pub health: Health,
+    /// The active configuration's digest: the CRC of its commit (CRC-32 of
+    /// the header's encoding and every table byte, PROTOCOL.md §7).
+    pub config_digest: Option<u32>,
 }
 
 /// Why the device last started, as its board's reset controller says.
@@ -566,6 +596,7 @@ pub enum ConfigFault {
         available: u32,
         what: MemoryKind,
     },
+    PixelCountZeroAll,
 }
 
 fn narrow(v: usize) -> u32 {
@@ -636,6 +667,7 @@ impl From<ConfigError> for ConfigFault {
                 available: narrow(available),
                 what,
             },
+            E::PixelCountZeroAll => F::PixelCountZeroAll,
         }
     }
 }
@@ -699,6 +731,7 @@ impl From<ConfigFault> for ConfigError {
                 available: w(available),
                 what,
             },
+            F::PixelCountZeroAll => E::PixelCountZeroAll,
         }
     }
 }

@@ -5,7 +5,8 @@
 use crate::config::{Calibration, Centroid, Config, PixelCount, Selection, SubapertureWindow};
 
 use super::{
-    ConfigHeader, HostMessage, PixelCountMode, Table, CRC32, MAX_CHUNK_BYTES, MAX_PIXEL_BYTES,
+    Background, ConfigHeader, HostMessage, PixelCountMode, Table, CRC32, MAX_CHUNK_BYTES,
+    MAX_PIXEL_BYTES,
 };
 
 impl Table {
@@ -47,9 +48,29 @@ impl ConfigHeader {
             level_filter: config.selection.level_filter,
             threshold: config.calibration.threshold,
             min_flux: config.centroid.min_flux,
-            background: config.calibration.background.is_some(),
+            background: match config.calibration.background {
+                None => Background::None,
+                // A uniform map travels as its one value (PROTOCOL.md §7).
+                Some([first, rest @ ..]) if rest.iter().all(|b| b == first) => {
+                    Background::Constant(*first)
+                }
+                Some(_) => Background::Map,
+            },
             gain: config.calibration.gain.is_some(),
             reference_slopes: config.centroid.reference_slopes.is_some(),
+        }
+    }
+
+    /// Longest postcard encoding of a header.
+    pub const MAX_ENCODED_LEN: usize = 64;
+
+    /// The header's postcard encoding, the start of the configuration's
+    /// digest (PROTOCOL.md §7).
+    pub fn encode<'b>(&self, out: &'b mut [u8; Self::MAX_ENCODED_LEN]) -> &'b [u8] {
+        // Cannot fail: the largest header is well under 64 bytes.
+        match postcard::to_slice(self, out) {
+            Ok(bytes) => bytes,
+            Err(_) => &[],
         }
     }
 
@@ -62,7 +83,7 @@ impl ConfigHeader {
             Table::PixelCounts => {
                 matches!(self.pixel_count, PixelCountMode::PerSubaperture).then_some(windows)
             }
-            Table::Background => self.background.then_some(pixels),
+            Table::Background => matches!(self.background, Background::Map).then_some(pixels),
             Table::Gain => self.gain.then_some(pixels),
             Table::ReferenceSlopes => self.reference_slopes.then_some(windows),
         }
@@ -171,11 +192,14 @@ pub fn write_table(config: &Config<'_>, table: Table, offset: usize, out: &mut [
     written
 }
 
-/// CRC-32/ISO-HDLC of all tables of `config` in upload order: the value
-/// of [`HostMessage::ConfigCommit`]'s `crc32`.
-pub fn tables_crc(config: &Config<'_>) -> u32 {
+/// The configuration's digest: CRC-32/ISO-HDLC of its header's postcard
+/// encoding followed by all its tables in upload order. It is the value of
+/// [`HostMessage::ConfigCommit`]'s `crc32` and of `Status.config_digest`.
+pub fn config_digest(config: &Config<'_>) -> u32 {
     let header = ConfigHeader::of(config);
     let mut digest = CRC32.digest();
+    let mut encoded = [0u8; ConfigHeader::MAX_ENCODED_LEN];
+    digest.update(header.encode(&mut encoded));
     let mut element = [0u8; 8];
     for table in Table::ALL {
         let Some(n) = header.table_elements(table) else {
@@ -276,7 +300,7 @@ impl<'c> UploadPlan<'c> {
                     self.step = Step::Done;
                     return Some(HostMessage::ConfigCommit {
                         upload_id: self.upload_id,
-                        crc32: tables_crc(&self.config),
+                        crc32: config_digest(&self.config),
                     });
                 }
                 Step::Done => return None,
@@ -371,7 +395,7 @@ impl ConfigHeader {
             camera: self.camera,
             windows: &tables.windows[..cut(windows, tables.windows.len())?],
             calibration: Calibration {
-                background: if self.background {
+                background: if self.background.needs_map() {
                     Some(&tables.background[..cut(pixels, tables.background.len())?])
                 } else {
                     None

@@ -8,7 +8,9 @@ use postcard_schema::schema::DataModelType;
 use postcard_schema::Schema;
 use serde::{Deserialize, Serialize};
 
-use super::tables::{pixels_from_le, read_reference_slope, read_window, tables_crc, TableSlices};
+use super::tables::{
+    config_digest, pixels_from_le, read_reference_slope, read_window, TableSlices,
+};
 use super::*;
 use crate::config::{
     Calibration, Centroid, Config, ConfigError, MapKind, MemoryKind, PixelCount, Selection,
@@ -47,7 +49,7 @@ fn header() -> ConfigHeader {
         level_filter: Some(LevelFilter { gain_shift: 16 }),
         threshold: Some(i32::MIN),
         min_flux: i64::MIN,
-        background: true,
+        background: Background::Constant(i32::MIN),
         gain: false,
         reference_slopes: true,
     }
@@ -178,6 +180,7 @@ fn device_examples() -> Vec<DeviceMessage<'static>> {
                 }),
                 idle_permille: Some(u16::MAX),
             },
+            config_digest: Some(u32::MAX),
         }),
         DeviceMessage::Slopes {
             frame: u32::MAX,
@@ -609,6 +612,74 @@ fn hello_prefix_reads_any_version() {
     assert!(VersionMismatch::check(Hello::CURRENT).is_ok());
 }
 
+// --- configuration digest -------------------------------------------------
+
+#[test]
+fn largest_header_encoding_fits() {
+    let mut out = [0u8; ConfigHeader::MAX_ENCODED_LEN];
+    let encoded = header().encode(&mut out);
+    let mut big = [0u8; 256];
+    assert_eq!(encoded, &*postcard::to_slice(&header(), &mut big).unwrap());
+    assert!(
+        encoded.len() < ConfigHeader::MAX_ENCODED_LEN,
+        "{}",
+        encoded.len()
+    );
+}
+
+#[test]
+fn uniform_background_travels_as_one_value() {
+    let camera = crate::Camera {
+        width: 4,
+        height: 2,
+        bit_depth: 12,
+    };
+    let windows = [SubapertureWindow {
+        x: 0,
+        y: 0,
+        width: 2,
+        height: 2,
+    }];
+    let uniform = [-48i32; 8];
+    let mut varied = uniform;
+    varied[7] = 0;
+    let config = |background: Option<&'static [i32]>| Config {
+        camera,
+        windows: &windows,
+        calibration: Calibration {
+            background,
+            gain: None,
+            threshold: None,
+        },
+        selection: Selection {
+            rule: crate::SelectionRule::SubtractNext,
+            count: PixelCount::All(2),
+            level_filter: None,
+        },
+        centroid: Centroid {
+            min_flux: 0,
+            reference_slopes: None,
+        },
+    };
+    let uniform: &'static [i32] = std::vec![-48i32; 8].leak();
+    let varied: &'static [i32] = varied.to_vec().leak();
+    assert_eq!(ConfigHeader::of(&config(None)).background, Background::None);
+    let constant = ConfigHeader::of(&config(Some(uniform)));
+    assert_eq!(constant.background, Background::Constant(-48));
+    assert_eq!(constant.table_elements(Table::Background), None);
+    let map = ConfigHeader::of(&config(Some(varied)));
+    assert_eq!(map.background, Background::Map);
+    assert_eq!(map.table_elements(Table::Background), Some(8));
+    // The digest tells the three apart although the tables are the same size.
+    let digests = [
+        config_digest(&config(None)),
+        config_digest(&config(Some(uniform))),
+        config_digest(&config(Some(varied))),
+    ];
+    assert_ne!(digests[0], digests[1]);
+    assert_ne!(digests[1], digests[2]);
+}
+
 // --- schema hash ----------------------------------------------------------
 
 /// The pinned hash: a change of any message type changes SCHEMA_HASH and
@@ -623,7 +694,7 @@ fn schema_hash_is_pinned() {
     );
 }
 
-const PINNED_SCHEMA_HASH: u64 = 0xe35c_2a17_aa50_94d5;
+const PINNED_SCHEMA_HASH: u64 = 0x9c43_f658_a6ef_bab1;
 
 fn hash_of<T: Schema + ?Sized>() -> u64 {
     u64::from_le_bytes(hash_ty_path::<T>(WIRE_CONVENTIONS))
@@ -858,9 +929,11 @@ fn upload_plan_rebuilds_the_configuration() {
         assert_eq!(count, expected_count);
         let header = header.unwrap();
         assert_eq!(header, ConfigHeader::of(&config));
-        let all: Vec<u8> = tables.concat();
+        let mut encoded = [0u8; ConfigHeader::MAX_ENCODED_LEN];
+        let mut all: Vec<u8> = header.encode(&mut encoded).to_vec();
+        all.extend(tables.concat());
         assert_eq!(commit, Some(CRC32.checksum(&all)));
-        assert_eq!(commit, Some(tables_crc(&config)));
+        assert_eq!(commit, Some(config_digest(&config)));
         let windows: Vec<_> = tables[0].chunks(8).map(read_window).collect();
         let counts: Vec<u16> = tables[1]
             .chunks(2)

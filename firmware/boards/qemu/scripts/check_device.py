@@ -184,8 +184,17 @@ def msg_config_begin(upload_id, *, rule, n, mean_count=None, level_filter=None, 
               + (bytes([1, level_filter]) if level_filter is not None else b"\x00")
               + (b"\x01" + zigzag(threshold) if threshold is not None else b"\x00")
               + zigzag(min_flux)
+              # Background: 0 None, 1 Map (a table follows), 2 Constant(i32)
               + bytes([background, gain, reference_slopes]))
     return bytes([1]) + varint(upload_id) + header
+
+
+def config_header_of(begin):
+    """The header's encoding inside a ConfigBegin body: the start of the digest (§7)."""
+    r = Reader(begin)
+    r.varint()  # message kind
+    r.varint()  # upload id
+    return r.rest()
 
 
 def msg_config_chunk(upload_id, table, offset, data):
@@ -255,7 +264,7 @@ def decode_device(body):
                               decode_errors=r.varint(), overruns=r.varint(),
                               pixel_errors=r.varint(), session=r.option(r.varint),
                               reset_reason=r.varint(), watchdog_ms=r.option(r.varint),
-                              health=decode_health(r))
+                              health=decode_health(r), config_digest=r.option(r.varint))
     if kind == 4:
         frame_id = r.varint()
         entries = []
@@ -495,9 +504,11 @@ def toml_for(name):
 def upload(dev, upload_id, name):
     header, _, _ = CONFIGS[name]
     tables = [(TABLE_WINDOWS, windows_table()), (TABLE_BACKGROUND, background_table())]
-    reply = dev.request(msg_config_begin(upload_id, windows=ACROSS * ACROSS, background=True, **header))
+    begin = msg_config_begin(upload_id, windows=ACROSS * ACROSS, background=True, **header)
+    reply = dev.request(begin)
     assert reply == ("Ack", dict(ack="UploadStarted", value=upload_id)), reply
-    crc = 0
+    # The commit's CRC is the configuration's digest: the header, then the tables.
+    crc = zlib.crc32(config_header_of(begin))
     for table, data in tables:
         for off in range(0, len(data), CHUNK_BYTES):
             part = data[off:off + CHUNK_BYTES]
