@@ -164,8 +164,10 @@ pub fn run(args: DemoArgs) -> Result<()> {
 /// The device's counters on one line.
 pub fn format_status(s: &Status) -> String {
     format!(
-        "device status: config id {}, frames processed {}, dropped {}, CRC errors {}, decode errors {}, overruns {}, pixel errors {}{}; last reset: {}; watchdog: {}",
+        "device status: config id {}{}, frames processed {}, dropped {}, CRC errors {}, decode errors {}, overruns {}, pixel errors {}{}; last reset: {}; watchdog: {}",
         s.config_id.map_or("none".into(), |c| format!("{c:#010x}")),
+        s.config_digest
+            .map_or(String::new(), |d| format!(" (digest {d:#010x})")),
         s.frames_processed,
         s.frames_dropped,
         s.crc_errors,

@@ -49,9 +49,13 @@ pub struct StreamArgs {
     /// Mismatches to print.
     #[arg(long, default_value_t = 10)]
     show: usize,
-    /// Do not upload --config (the device already has it; --config is still used to verify).
+    /// Do not upload --config: the device already runs it. Its active configuration's digest
+    /// must equal --config's (refused otherwise, unless --force).
     #[arg(long)]
     no_configure: bool,
+    /// With --no-configure: stream even if the device's configuration differs from --config.
+    #[arg(long, requires = "no_configure")]
+    force: bool,
 }
 
 /// Frames read and streamed at a time.
@@ -74,6 +78,7 @@ pub fn run(args: StreamArgs) -> Result<()> {
     let mut client = Client::open(&args.port)?;
     client.set_interrupt(Some(interrupted));
     if args.no_configure {
+        check_active_configuration(&mut client, &view, &args.config, args.force)?;
         client.assume_configured(&view);
     } else {
         let done = client.configure(&view)?;
@@ -189,6 +194,37 @@ pub fn run(args: StreamArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// `--no-configure`: the device's active configuration must be `--config`'s
+/// (their digests, PROTOCOL.md §7, are equal), or every result would differ.
+fn check_active_configuration(
+    client: &mut Client,
+    view: &brightpix_protocol::Config<'_>,
+    path: &Path,
+    force: bool,
+) -> Result<()> {
+    let expected = brightpix_protocol::wire::tables::config_digest(view);
+    let status = client
+        .status()
+        .context("asking the device for its active configuration (--no-configure)")?;
+    let problem = match status.config_digest {
+        Some(digest) if digest == expected => return Ok(()),
+        Some(digest) => format!(
+            "the device's active configuration (id {:#010x}, digest {digest:#010x}) is not {} (digest {expected:#010x})",
+            status.config_id.unwrap_or(0),
+            path.display()
+        ),
+        None => "the device has no active configuration".to_string(),
+    };
+    if force {
+        eprintln!("brightpix: warning: {problem}; streaming anyway (--force)");
+        return Ok(());
+    }
+    bail!(
+        "{problem}: drop --no-configure to upload {}, or add --force to stream anyway",
+        path.display()
+    )
 }
 
 fn print_verification(verifier: &Verifier, requested: usize) {

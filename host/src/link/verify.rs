@@ -21,6 +21,8 @@ pub struct Mismatch {
 }
 
 impl fmt::Display for Mismatch {
+    /// Raw integers with their units and, beside them, pixels and counts:
+    /// slopes in 2^-16 pixel, flux in 1/16 count (shared/SPEC.md §6).
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(
             f,
@@ -28,23 +30,32 @@ impl fmt::Display for Mismatch {
             self.frame, self.subaperture
         )?;
         match &self.device {
-            Some(d) => write!(
-                f,
-                "x={} y={} flux={} valid={}",
-                d.slope_x, d.slope_y, d.flux, d.valid
-            )?,
+            Some(d) => write_result(f, d.slope_x, d.slope_y, d.flux, d.valid)?,
             None => write!(f, "(no result)")?,
         }
-        write!(f, ", reference ")?;
+        write!(f, "; reference ")?;
         match &self.reference {
-            Some(r) => write!(
-                f,
-                "x={} y={} flux={} valid={}",
-                r.slope_x, r.slope_y, r.flux, r.valid
-            ),
+            Some(r) => write_result(f, r.slope_x, r.slope_y, r.flux, r.valid),
             None => write!(f, "(frame refused)"),
         }
     }
+}
+
+fn write_result(
+    f: &mut fmt::Formatter<'_>,
+    x: i32,
+    y: i32,
+    flux: impl Into<i64>,
+    valid: bool,
+) -> fmt::Result {
+    let flux = flux.into();
+    write!(
+        f,
+        "x={x} y={y} (2^-16 px; {:+.6} {:+.6} px), flux={flux} (1/16 count; {} counts), valid={valid}",
+        f64::from(x) / 65536.0,
+        f64::from(y) / 65536.0,
+        flux as f64 / 16.0
+    )
 }
 
 /// Feeds the reference the same frames as the device, in the same order,
