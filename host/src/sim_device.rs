@@ -6,7 +6,7 @@
 //!   thread of this process, speaking over one end of a pseudo-terminal
 //!   pair (or a Unix socket); any serial client opens the other end;
 //! - [`QemuDevice`]: the real firmware ELF (`brightpix-qemu`) in
-//!   `qemu-system-arm` (mps2-an386), its UART0 on a pseudo-terminal or a
+//!   `qemu-system-arm` (mps2-an386 Cortex-M4, or mps2-an500 Cortex-M7: [`QemuCpu`]), its UART0 on a pseudo-terminal or a
 //!   Unix socket, its pixels optionally from a FIFO that the host writes
 //!   (read by semihosting, much faster than the emulated UART).
 //!
@@ -626,20 +626,89 @@ pub fn firmware_dir() -> PathBuf {
         .map_or_else(|| PathBuf::from("firmware"), |root| root.join("firmware"))
 }
 
+/// The core QEMU emulates, and the code generation the firmware is built
+/// for: the same ELF contract on both (firmware/README.md).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum QemuCpu {
+    /// Cortex-M4F on `mps2-an386`: the firmware's default build.
+    #[default]
+    M4,
+    /// Cortex-M7 on `mps2-an500`, built with `-C target-cpu=cortex-m7` into
+    /// `firmware/target/cortex-m7` (the STM32H743's code generation; a
+    /// separate target directory keeps the M4 build valid).
+    M7,
+}
+
+impl QemuCpu {
+    /// QEMU's `-cpu`.
+    pub fn cpu(self) -> &'static str {
+        match self {
+            QemuCpu::M4 => "cortex-m4",
+            QemuCpu::M7 => "cortex-m7",
+        }
+    }
+
+    /// QEMU's `-machine`.
+    pub fn machine(self) -> &'static str {
+        match self {
+            QemuCpu::M4 => "mps2-an386",
+            QemuCpu::M7 => "mps2-an500",
+        }
+    }
+
+    /// The firmware's target directory.
+    fn target_dir(self) -> PathBuf {
+        match self {
+            QemuCpu::M4 => firmware_dir().join("target"),
+            QemuCpu::M7 => firmware_dir().join("target/cortex-m7"),
+        }
+    }
+
+    /// Extra `cargo --config` of its build.
+    fn cargo_config(self) -> Option<&'static str> {
+        match self {
+            QemuCpu::M4 => None,
+            QemuCpu::M7 => {
+                Some(r#"target.thumbv7em-none-eabihf.rustflags=["-C","target-cpu=cortex-m7"]"#)
+            }
+        }
+    }
+
+    /// Where [`build_qemu_elf_for`] puts the ELF.
+    pub fn default_elf(self) -> PathBuf {
+        self.target_dir()
+            .join("thumbv7em-none-eabihf/release/brightpix-qemu")
+    }
+}
+
 /// Where `cargo build --release -p brightpix-board-qemu` puts the ELF.
 pub fn default_qemu_elf() -> PathBuf {
-    firmware_dir().join("target/thumbv7em-none-eabihf/release/brightpix-qemu")
+    QemuCpu::M4.default_elf()
 }
 
 /// Builds the QEMU firmware (`cargo build --release -p brightpix-board-qemu`
 /// in `firmware/`, with the calling cargo's `CARGO_*` variables removed so
 /// that they do not leak into the thumb build). Output goes to stderr.
 pub fn build_qemu_elf() -> anyhow::Result<PathBuf> {
+    build_qemu_elf_for(QemuCpu::M4)
+}
+
+/// [`build_qemu_elf`] for `cpu`: the M7 build is `cargo build --release -p
+/// brightpix-board-qemu --bin brightpix-qemu --target-dir target/cortex-m7
+/// --config 'target.thumbv7em-none-eabihf.rustflags=["-C","target-cpu=cortex-m7"]'`
+/// (the pattern of `boards/qemu/scripts/run-bench m7`).
+pub fn build_qemu_elf_for(cpu: QemuCpu) -> anyhow::Result<PathBuf> {
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let mut command = Command::new(cargo);
     command
         .args(["build", "--release", "-p", "brightpix-board-qemu"])
         .current_dir(firmware_dir());
+    if let Some(config) = cpu.cargo_config() {
+        command
+            .args(["--bin", "brightpix-qemu", "--target-dir"])
+            .arg(cpu.target_dir())
+            .args(["--config", config]);
+    }
     for (key, _) in std::env::vars_os() {
         let key_str = key.to_string_lossy();
         if (key_str.starts_with("CARGO_") && key_str != "CARGO_HOME")
@@ -655,11 +724,12 @@ pub fn build_qemu_elf() -> anyhow::Result<PathBuf> {
         .context("running cargo to build the QEMU firmware")?;
     if !status.success() {
         bail!(
-            "building the QEMU firmware failed ({status}); try: cd {} && cargo build --release -p brightpix-board-qemu",
+            "building the QEMU firmware ({}) failed ({status}); try: cd {} && cargo build --release -p brightpix-board-qemu",
+            cpu.cpu(),
             firmware_dir().display()
         );
     }
-    let elf = default_qemu_elf();
+    let elf = cpu.default_elf();
     if !elf.exists() {
         bail!("the firmware build did not produce {}", elf.display());
     }
@@ -668,16 +738,21 @@ pub fn build_qemu_elf() -> anyhow::Result<PathBuf> {
 
 /// The QEMU firmware ELF: `elf` if given, else the default one, built if missing.
 pub fn qemu_elf(elf: Option<&Path>) -> anyhow::Result<PathBuf> {
+    qemu_elf_for(elf, QemuCpu::M4)
+}
+
+/// [`qemu_elf`] for `cpu`.
+pub fn qemu_elf_for(elf: Option<&Path>, cpu: QemuCpu) -> anyhow::Result<PathBuf> {
     match elf {
         Some(e) if e.exists() => Ok(e.to_path_buf()),
         Some(e) => bail!("firmware ELF {} does not exist", e.display()),
-        None if default_qemu_elf().exists() => Ok(default_qemu_elf()),
+        None if cpu.default_elf().exists() => Ok(cpu.default_elf()),
         None => {
             eprintln!(
                 "brightpix: building the QEMU firmware ({} is missing; about a minute)",
-                default_qemu_elf().display()
+                cpu.default_elf().display()
             );
-            build_qemu_elf()
+            build_qemu_elf_for(cpu)
         }
     }
 }
@@ -695,6 +770,8 @@ pub struct QemuOptions {
     pub log: Option<PathBuf>,
     /// `qemu-system-arm` (default: from PATH).
     pub qemu: Option<PathBuf>,
+    /// The core and machine (the ELF must be built for it).
+    pub cpu: QemuCpu,
 }
 
 /// The firmware in `qemu-system-arm`. Stops (kills QEMU) when dropped, and
@@ -707,6 +784,7 @@ pub struct QemuDevice {
     fifo: Option<PathBuf>,
     log: PathBuf,
     elf: PathBuf,
+    cpu: QemuCpu,
     dir: PathBuf,
     stdout: Option<JoinHandle<()>>,
 }
@@ -727,7 +805,7 @@ pub fn temp_dir(prefix: &str) -> io::Result<PathBuf> {
 
 impl QemuDevice {
     pub fn launch(options: QemuOptions) -> anyhow::Result<QemuDevice> {
-        let elf = qemu_elf(options.elf.as_deref())?;
+        let elf = qemu_elf_for(options.elf.as_deref(), options.cpu)?;
         let dir = temp_dir("brightpix-qemu")?;
         let log = options.log.clone().unwrap_or_else(|| dir.join("defmt.log"));
         let qemu = options
@@ -737,9 +815,9 @@ impl QemuDevice {
         let mut command = Command::new(&qemu);
         command.args([
             "-cpu",
-            "cortex-m4",
+            options.cpu.cpu(),
             "-machine",
-            "mps2-an386",
+            options.cpu.machine(),
             "-display",
             "none",
             "-monitor",
@@ -826,6 +904,7 @@ impl QemuDevice {
             fifo,
             log,
             elf,
+            cpu: options.cpu,
             dir,
             stdout: Some(stdout_thread),
         };
@@ -907,6 +986,11 @@ impl QemuDevice {
 
     pub fn elf(&self) -> &Path {
         &self.elf
+    }
+
+    /// The core and machine QEMU emulates.
+    pub fn cpu(&self) -> QemuCpu {
+        self.cpu
     }
 
     /// QEMU's process id.

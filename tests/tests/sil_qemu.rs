@@ -1,14 +1,17 @@
 //! Simulation in the loop with the real firmware: the QEMU board's ELF
-//! (`brightpix-qemu`) in `qemu-system-arm` (mps2-an386, Cortex-M4), UART0
-//! on a pseudo-terminal, pixels through a FIFO that the board reads by
-//! semihosting (the emulated UART carries only ~20 KB/s). Driven through
-//! the host tool's client; every result is checked bit for bit against
-//! the reference.
+//! (`brightpix-qemu`) in `qemu-system-arm`, UART0 on a pseudo-terminal,
+//! pixels through a FIFO that the board reads by semihosting (the emulated
+//! UART carries only ~20 KB/s). Driven through the host tool's client;
+//! every result is checked bit for bit against the reference.
+//!
+//! Two builds: Cortex-M4F on mps2-an386 (every test) and Cortex-M7 on
+//! mps2-an500 (`-C target-cpu=cortex-m7`, the STM32H743's code generation,
+//! built into `firmware/target/cortex-m7`): every case bit-exact, the
+//! limits and `doctor` (the `_m7` tests).
 //!
 //! Needs `qemu-system-arm` and the thumbv7em-none-eabihf target
-//! (`scripts/test` installs both). The ELF is (re)built by
-//! `cargo build --release -p brightpix-board-qemu` in `firmware/` first,
-//! which is quick when it is up to date.
+//! (`scripts/test` installs both). The ELFs are (re)built by cargo in
+//! `firmware/` first, which is quick when they are up to date.
 
 mod sil_common;
 
@@ -16,31 +19,49 @@ use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use brightpix::link::{Client, PixelSink};
-use brightpix::sim_device::{build_qemu_elf, QemuDevice, QemuOptions, SimLinkKind};
+use brightpix::sim_device::{build_qemu_elf_for, QemuCpu, QemuDevice, QemuOptions, SimLinkKind};
 use brightpix_protocol::wire::PixelSourceKind;
 use sil_common::*;
 
-/// Builds the firmware once for all tests of this file.
-fn elf() -> std::path::PathBuf {
-    static ELF: OnceLock<std::path::PathBuf> = OnceLock::new();
-    ELF.get_or_init(|| {
+/// Builds the firmware for `cpu` once for all tests of this file.
+fn elf_for(cpu: QemuCpu) -> std::path::PathBuf {
+    static M4: OnceLock<std::path::PathBuf> = OnceLock::new();
+    static M7: OnceLock<std::path::PathBuf> = OnceLock::new();
+    let cell = match cpu {
+        QemuCpu::M4 => &M4,
+        QemuCpu::M7 => &M7,
+    };
+    cell.get_or_init(|| {
         let t = Instant::now();
-        let elf = build_qemu_elf().unwrap_or_else(|e| panic!("{e:#}"));
-        eprintln!("  firmware build: {:.1} s", t.elapsed().as_secs_f64());
+        let elf = build_qemu_elf_for(cpu).unwrap_or_else(|e| panic!("{e:#}"));
+        eprintln!(
+            "  firmware build ({}): {:.1} s",
+            cpu.cpu(),
+            t.elapsed().as_secs_f64()
+        );
         elf
     })
     .clone()
 }
 
-fn launch(pixels_fifo: bool) -> QemuDevice {
+fn elf() -> std::path::PathBuf {
+    elf_for(QemuCpu::M4)
+}
+
+fn launch_on(cpu: QemuCpu, pixels_fifo: bool) -> QemuDevice {
     let device = QemuDevice::launch(QemuOptions {
-        elf: Some(elf()),
+        elf: Some(elf_for(cpu)),
         pixels_fifo,
+        cpu,
         ..QemuOptions::default()
     })
     .unwrap_or_else(|e| panic!("{e:#}"));
     device.release_fifo(Duration::from_secs(10)).unwrap();
     device
+}
+
+fn launch(pixels_fifo: bool) -> QemuDevice {
+    launch_on(QemuCpu::M4, pixels_fifo)
 }
 
 fn connect(device: &QemuDevice) -> Client {
@@ -64,10 +85,9 @@ fn check_alive(device: &mut QemuDevice) {
     }
 }
 
-#[test]
-fn every_case_bit_exact_in_qemu() {
+fn every_case_bit_exact(cpu: QemuCpu) {
     let cases = timed("simulating frames", all_cases);
-    let mut device = launch(true);
+    let mut device = launch_on(cpu, true);
     let mut client = connect(&device);
     eprintln!("  {}", client.info());
     for case in &cases {
@@ -82,6 +102,65 @@ fn every_case_bit_exact_in_qemu() {
             t.elapsed().as_secs_f64() * 1e3
         );
     }
+}
+
+#[test]
+fn every_case_bit_exact_in_qemu() {
+    every_case_bit_exact(QemuCpu::M4);
+}
+
+/// The Cortex-M7 build (the H743's code generation), bit for bit.
+#[test]
+fn every_case_bit_exact_in_qemu_m7() {
+    every_case_bit_exact(QemuCpu::M7);
+}
+
+/// `doctor` against the QEMU device: the stack is read (painted, guarded
+/// by the MPU, well within its size); silicon, clocks, USB clock, camera
+/// interface, CPU idle, reset reason and watchdog are hardware only.
+fn doctor_reads_the_stack_and_marks_the_rest(cpu: QemuCpu, board: &str) {
+    use brightpix::cli::doctor::{diagnose, Verdict};
+    let mut device = launch_on(cpu, true);
+    let mut client = connect(&device);
+    assert_eq!(client.info().board, board);
+    // Some work first, so the stack has been used.
+    run_case(&mut client, &edge_cases()[0]);
+    let lines = diagnose(&mut client, Duration::ZERO).unwrap();
+    check_alive(&mut device);
+    let line = |name: &str| lines.iter().find(|l| l.name == name).unwrap().clone();
+    let stack = line("stack");
+    assert_eq!(stack.verdict, Verdict::Ok, "{stack}");
+    assert!(stack.detail.contains("guarded"), "{stack}");
+    let status = client.status().unwrap();
+    let usage = status.health.stack.expect("the QEMU board reads its stack");
+    assert!(usage.guarded);
+    assert!(usage.peak > 256 && usage.peak < usage.size / 4, "{usage:?}");
+    for name in [
+        "silicon",
+        "clocks",
+        "usb clock",
+        "camera interface",
+        "cpu idle",
+        "last reset",
+        "watchdog",
+    ] {
+        let l = line(name);
+        assert_eq!(l.verdict, Verdict::NotRead, "{l}");
+        assert!(l.detail.contains("hardware only"), "{l}");
+    }
+    for name in ["link", "counters"] {
+        assert_eq!(line(name).verdict, Verdict::Ok, "{}", line(name));
+    }
+}
+
+#[test]
+fn doctor_in_qemu() {
+    doctor_reads_the_stack_and_marks_the_rest(QemuCpu::M4, "qemu-mps2-an386");
+}
+
+#[test]
+fn doctor_in_qemu_m7() {
+    doctor_reads_the_stack_and_marks_the_rest(QemuCpu::M7, "qemu-mps2-an500");
 }
 
 fn case_with_maps() -> Case {
@@ -108,17 +187,28 @@ fn a_dead_clients_leftovers_do_not_reach_the_next_session_in_qemu() {
     check_alive(&mut device);
 }
 
-/// `check-config --device qemu` checks against what the firmware reports.
-#[test]
-fn the_qemu_limits_known_offline_are_the_firmwares() {
-    let mut device = launch(false);
+/// `check-config --device qemu` checks against what the firmware reports
+/// (the M7 build: the same limits under its own board name).
+fn the_qemu_limits_known_offline_are_the_firmwares_on(cpu: QemuCpu) {
+    let mut device = launch_on(cpu, false);
     let client = connect(&device);
     let reported = brightpix::link::limits::DeviceLimits::of(client.info());
-    assert_eq!(
-        Some(reported),
-        brightpix::link::limits::DeviceLimits::named("qemu")
-    );
+    let mut known = brightpix::link::limits::DeviceLimits::named("qemu").unwrap();
+    if cpu == QemuCpu::M7 {
+        known.board = "qemu-mps2-an500".into();
+    }
+    assert_eq!(reported, known);
     check_alive(&mut device);
+}
+
+#[test]
+fn the_qemu_limits_known_offline_are_the_firmwares() {
+    the_qemu_limits_known_offline_are_the_firmwares_on(QemuCpu::M4);
+}
+
+#[test]
+fn the_qemu_limits_known_offline_are_the_firmwares_m7() {
+    the_qemu_limits_known_offline_are_the_firmwares_on(QemuCpu::M7);
 }
 
 /// Issue 10, fault 4: `simulate-device --qemu` killed with SIGKILL left

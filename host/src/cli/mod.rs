@@ -6,6 +6,7 @@ mod check_config;
 mod configure;
 mod demo;
 mod devices;
+pub mod doctor;
 mod endtoend;
 mod paper;
 mod process;
@@ -42,6 +43,7 @@ enum Command {
     Configure(configure::ConfigureArgs),
     CheckConfig(check_config::CheckConfigArgs),
     Status(status::StatusArgs),
+    Doctor(doctor::DoctorArgs),
     Stream(stream::StreamArgs),
     Capture(capture::CaptureArgs),
     SimulateDevice(simulate_device::SimulateDeviceArgs),
@@ -72,6 +74,7 @@ pub fn main() -> ExitCode {
         Command::Configure(args) => configure::run(args),
         Command::CheckConfig(args) => check_config::run(args),
         Command::Status(args) => status::run(args),
+        Command::Doctor(args) => doctor::run(args),
         Command::Stream(args) => stream::run(args),
         Command::Capture(args) => capture::run(args),
         Command::SimulateDevice(args) => simulate_device::run(args),

@@ -7,8 +7,8 @@ use anyhow::{bail, Result};
 use clap::{Args, ValueEnum};
 
 use crate::sim_device::{
-    catch_interrupts, interrupted, temp_dir, InProcessDevice, InProcessOptions, QemuDevice,
-    QemuOptions, SimLinkKind,
+    catch_interrupts, interrupted, temp_dir, InProcessDevice, InProcessOptions, QemuCpu,
+    QemuDevice, QemuOptions, SimLinkKind,
 };
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -19,10 +19,19 @@ pub enum LinkArg {
     Unix,
 }
 
+/// The core of `--qemu`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum CpuArg {
+    /// Cortex-M4F on mps2-an386 (the default build).
+    M4,
+    /// Cortex-M7 on mps2-an500, built with -C target-cpu=cortex-m7 (the STM32H743's code generation).
+    M7,
+}
+
 #[derive(Args)]
 #[command(
     about = "Run the firmware as a device on this machine and print its serial port, until Ctrl-C",
-    after_help = "Examples:\n  brightpix simulate-device                 # the firmware's device loop in-process, on /dev/pts/N\n  brightpix simulate-device --qemu          # the real firmware ELF in qemu-system-arm (mps2-an386)\n  brightpix simulate-device --qemu --pixels-fifo   # pixels also through a FIFO (much faster than QEMU's UART)\n  brightpix simulate-device --link unix --socket /tmp/bp.sock\n\n\
+    after_help = "Examples:\n  brightpix simulate-device                 # the firmware's device loop in-process, on /dev/pts/N\n  brightpix simulate-device --qemu          # the real firmware ELF in qemu-system-arm (mps2-an386)\n  brightpix simulate-device --qemu --pixels-fifo   # pixels also through a FIFO (much faster than QEMU's UART)\n  brightpix simulate-device --qemu --cpu m7 # the Cortex-M7 build in mps2-an500\n  brightpix simulate-device --link unix --socket /tmp/bp.sock\n\n\
 The first line on stdout is the port (/dev/pts/N or unix:PATH). Then, in another terminal:\n  brightpix status --port /dev/pts/N\n  brightpix stream --port /dev/pts/N --config examples/canary.toml --frames f.npy --verify\n\
 or from Python: serial.Serial('/dev/pts/N', timeout=1) and the wire format of shared/PROTOCOL.md.\n\
 The in-process device has the QEMU board's limits (6400 sub-apertures, maps of 256x256 pixels).\n\
@@ -43,6 +52,9 @@ pub struct SimulateDeviceArgs {
     /// Also read PixelRows frames from a FIFO (its path is printed); for `stream --pixels-fifo`.
     #[arg(long)]
     pixels_fifo: bool,
+    /// Core for --qemu: m4 (mps2-an386) or m7 (mps2-an500; ELF in firmware/target/cortex-m7/).
+    #[arg(long, value_enum, default_value_t = CpuArg::M4)]
+    cpu: CpuArg,
     /// Firmware ELF for --qemu (default: firmware/target/thumbv7em-none-eabihf/release/brightpix-qemu).
     #[arg(long, value_name = "PATH")]
     elf: Option<PathBuf>,
@@ -67,12 +79,17 @@ pub fn run(args: SimulateDeviceArgs) -> Result<()> {
             pixels_fifo: args.pixels_fifo,
             log: args.log.clone(),
             qemu: None,
+            cpu: match args.cpu {
+                CpuArg::M4 => QemuCpu::M4,
+                CpuArg::M7 => QemuCpu::M7,
+            },
         })?;
         device.release_fifo_in_background(Duration::from_secs(3600));
         println!("{}", device.port());
         eprintln!(
-            "brightpix: firmware {} running in qemu-system-arm (mps2-an386); UART0 on {}",
+            "brightpix: firmware {} running in qemu-system-arm ({}); UART0 on {}",
             device.elf().display(),
+            device.cpu().machine(),
             device.port()
         );
         if let Some(fifo) = device.pixels_fifo() {

@@ -1,7 +1,8 @@
 //! Glue shared by the brightpix boards.
 //!
-//! Only what every board needs and that must exist exactly once per binary:
-//! the embassy executor loop and its `__pender`.
+//! What every board needs: the embassy executor loop and its `__pender`
+//! (exactly once per binary), and the stack's guard and high-water mark.
 #![no_std]
 
 pub mod executor;
+pub mod stack;

@@ -1,4 +1,6 @@
-//! Board support for QEMU `mps2-an386` (Cortex-M4F), shared by the device
+//! Board support for QEMU `mps2-an386` (Cortex-M4F) and `mps2-an500`
+//! (Cortex-M7, the same firmware built with `-C target-cpu=cortex-m7`: the
+//! code generation the STM32H743 gets), shared by the device
 //! firmware (`brightpix-qemu`, `src/main.rs`) and the engine benchmark
 //! (`brightpix-qemu-bench`, `src/bench/`).
 //!
@@ -25,5 +27,33 @@ pub mod uart;
 
 pub use fault::{exit, exit_code};
 
-/// The name the device reports in `HelloReply`.
+use brightpix_protocol::wire::Health;
+
+/// The name the device reports in `HelloReply` on mps2-an386 (Cortex-M4).
 pub const BOARD_NAME: &str = "qemu-mps2-an386";
+
+/// The name it reports on mps2-an500 (Cortex-M7).
+pub const BOARD_NAME_M7: &str = "qemu-mps2-an500";
+
+/// The board's name, from the core QEMU emulates (SCB CPUID.PARTNO,
+/// bits 15:4: 0xC24 Cortex-M4, 0xC27 Cortex-M7).
+pub fn board_name() -> &'static str {
+    // SAFETY: a read of a read-only system register.
+    let cpuid = unsafe { (*cortex_m::peripheral::CPUID::PTR).base.read() };
+    if (cpuid >> 4) & 0xFFF == 0xC27 {
+        BOARD_NAME_M7
+    } else {
+        BOARD_NAME
+    }
+}
+
+/// What this board can read of its health (`Status.health`): only the
+/// stack. Silicon, clocks, USB clock trimming and a camera interface are
+/// the STM32H743's (`None` here: not read); QEMU's DWT cycle counter reads
+/// 0, so neither is the CPU's idle time.
+pub fn health() -> Health {
+    Health {
+        stack: Some(brightpix_board_common::stack::usage()),
+        ..Health::default()
+    }
+}

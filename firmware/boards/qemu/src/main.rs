@@ -1,4 +1,5 @@
-//! brightpix on QEMU mps2-an386 (Cortex-M4F): the device.
+//! brightpix on QEMU mps2-an386 (Cortex-M4F) or mps2-an500 (Cortex-M7):
+//! the device.
 //!
 //! The board-independent device loop (`brightpix_firmware::device`) with
 //! UART0 as the host link, speaking the brightpix protocol
@@ -12,12 +13,12 @@
 #![no_std]
 #![no_main]
 
-use brightpix_board_common::executor;
+use brightpix_board_common::{executor, stack};
 use brightpix_board_qemu::args::{Options, Selftest};
 use brightpix_board_qemu::hostfs::{self, HostFile};
 use brightpix_board_qemu::pixels::{BoardSource, HostPixels};
 use brightpix_board_qemu::uart::{self, Uart0};
-use brightpix_board_qemu::{exit, exit_code, storage, time_driver, BOARD_NAME};
+use brightpix_board_qemu::{board_name, exit, exit_code, storage, time_driver};
 use brightpix_firmware::device::{Device, LinkOnly, PixelRowsStream};
 use cortex_m_rt::entry;
 use embassy_executor::Spawner;
@@ -32,9 +33,11 @@ const EOT: u8 = 0x04;
 
 #[entry]
 fn main() -> ! {
-    let cp = cortex_m::Peripherals::take().unwrap();
+    stack::paint();
+    let mut cp = cortex_m::Peripherals::take().unwrap();
+    stack::guard(&mut cp.MPU);
     time_driver::init(cp.SYST);
-    defmt::info!("brightpix-qemu: {=str}", BOARD_NAME);
+    defmt::info!("brightpix-qemu: {=str}", board_name());
     let options = Options::from_semihosting();
     if let Some(path) = &options.digest {
         digest(path);
@@ -75,7 +78,8 @@ fn main() -> ! {
         }
     };
     let uart = Uart0::new().unwrap();
-    let device = Device::new(uart, source, storage::device_buffers(), BOARD_NAME);
+    let mut device = Device::new(uart, source, storage::device_buffers(), board_name());
+    device.set_health(brightpix_board_qemu::health);
     let c = device.capabilities();
     defmt::info!(
         "device: {=u32} sub-apertures, maps of {=u32} pixels, {=u32} open windows, {=u32} pool entries, {=u32} results per row; buffers {=usize} bytes; pixel source {}",

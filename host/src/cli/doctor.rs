@@ -1,0 +1,341 @@
+//! `brightpix doctor`: the device's health, one line per thing a bring-up
+//! engineer checks first, each with a verdict. Built from `HelloReply` and
+//! `Status` (`Status.health`, PROTOCOL.md §5): what the board reads about
+//! itself. A reading the board cannot make is `None` on the wire; on a
+//! simulated device (QEMU, in-process) that is marked "hardware only".
+
+use std::fmt;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Result};
+use brightpix_protocol::wire::{ErratumFix, Health, ResetReason, Status};
+use clap::Args;
+
+use crate::link::{Client, DeviceInfo};
+
+#[derive(Args)]
+#[command(
+    about = "Check a device's health: silicon and errata, clocks, USB clock trimming, stack, camera interface, resets, link",
+    after_help = "Examples:\n  brightpix doctor --port /dev/ttyACM0\n  brightpix doctor --port /dev/pts/4        # a simulated device: hardware-only lines say so\n\n\
+Exit status 1 if any line is FAIL. firmware/README.md (\"Bring-up\") says what each line should read."
+)]
+pub struct DoctorArgs {
+    /// Serial port of the device (/dev/ttyACM0, /dev/pts/N, COM3) or unix:PATH.
+    #[arg(long)]
+    port: String,
+    /// Seconds between the two status requests over which the CPU's idle
+    /// time is measured (boards that report it).
+    #[arg(long, default_value_t = 1.0)]
+    window: f64,
+}
+
+/// A line's verdict.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Verdict {
+    Ok,
+    Warn,
+    Fail,
+    /// The device cannot read this (a simulated one: hardware only).
+    NotRead,
+}
+
+impl fmt::Display for Verdict {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.pad(match self {
+            Verdict::Ok => "ok",
+            Verdict::Warn => "WARN",
+            Verdict::Fail => "FAIL",
+            Verdict::NotRead => "n/a",
+        })
+    }
+}
+
+/// One line of the report.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Check {
+    pub name: &'static str,
+    pub verdict: Verdict,
+    pub detail: String,
+}
+
+impl fmt::Display for Check {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{:<5} {:<16} {}", self.verdict, self.name, self.detail)
+    }
+}
+
+/// Whether the device is a simulation (QEMU or in-process), by its board
+/// name: its missing readings are hardware-only, not faults.
+pub fn is_simulated(board: &str) -> bool {
+    board.starts_with("qemu-") || board.starts_with("brightpix-sim")
+}
+
+/// The STM32H7 revision letter of a DBGMCU_IDCODE REV_ID (RM0433 §62.5.8).
+fn revision_name(revision_id: u16) -> &'static str {
+    match revision_id {
+        0x1000 => "rev A",
+        0x1001 => "rev Z",
+        0x1003 => "rev Y",
+        0x2001 => "rev X",
+        0x2003 => "rev V",
+        _ => "unknown revision",
+    }
+}
+
+fn mhz(hz: u32) -> String {
+    format!("{:.1} MHz", f64::from(hz) / 1e6)
+}
+
+/// The report's lines for a device's identity and status; `round_trip`
+/// is the time the status request took.
+pub fn examine(info: &DeviceInfo, status: &Status, round_trip: Duration) -> Vec<Check> {
+    let simulated = is_simulated(&info.board);
+    let missing = |name: &'static str| Check {
+        name,
+        verdict: if simulated {
+            Verdict::NotRead
+        } else {
+            Verdict::Warn
+        },
+        detail: if simulated {
+            "hardware only: not read by this simulated device".into()
+        } else {
+            "not reported by this board's firmware".into()
+        },
+    };
+    let check = |name, verdict, detail: String| Check {
+        name,
+        verdict,
+        detail,
+    };
+    let Health {
+        silicon,
+        clocks,
+        usb_clock,
+        stack,
+        camera_interface,
+        idle_permille,
+    } = status.health;
+    let mut lines = vec![check(
+        "link",
+        Verdict::Ok,
+        format!(
+            "board \"{}\", protocol {} (schema {:#018x}), status round trip {:.1} ms",
+            info.board,
+            info.version,
+            info.schema,
+            round_trip.as_secs_f64() * 1e3
+        ),
+    )];
+    lines.push(match silicon {
+        None => missing("silicon"),
+        Some(s) => {
+            let (verdict, fix) = match s.axi_sram_fix {
+                ErratumFix::NotNeeded => (Verdict::Ok, "not needed on this revision"),
+                ErratumFix::Applied => (Verdict::Ok, "workaround applied and read back"),
+                ErratumFix::Failed => (
+                    Verdict::Fail,
+                    "NEEDED but AXI_TARG7_FN_MOD did not read back: AXI SRAM reads may be corrupted",
+                ),
+            };
+            check(
+                "silicon",
+                verdict,
+                format!(
+                    "DEV_ID {:#05x}, REV_ID {:#06x} ({}); AXI SRAM erratum (ES0392): {fix}",
+                    s.device_id,
+                    s.revision_id,
+                    revision_name(s.revision_id)
+                ),
+            )
+        }
+    });
+    lines.push(match clocks {
+        None => missing("clocks"),
+        Some(c) => {
+            let clock_ok = c.sysclk_configured_hz == c.sysclk_read_hz;
+            let scale_ok = c.voltage_scale_configured == c.voltage_scale_read && c.voltage_ready;
+            check(
+                "clocks",
+                if clock_ok && scale_ok {
+                    Verdict::Ok
+                } else {
+                    Verdict::Fail
+                },
+                format!(
+                    "CPU {} configured, {} read back; voltage scale {} configured, {} read back{}",
+                    mhz(c.sysclk_configured_hz),
+                    mhz(c.sysclk_read_hz),
+                    c.voltage_scale_configured,
+                    c.voltage_scale_read,
+                    if c.voltage_ready {
+                        ", ready"
+                    } else {
+                        ", NOT READY"
+                    }
+                ),
+            )
+        }
+    });
+    lines.push(match usb_clock {
+        None => missing("usb clock"),
+        Some(u) => {
+            let source = match u.sync_source {
+                0 => "CRS_SYNC pin",
+                1 => "LSE",
+                2 => "USB1 (OTG_HS) SOF",
+                3 => "USB2 (OTG_FS) SOF",
+                _ => "invalid",
+            };
+            let verdict = if !u.synced {
+                Verdict::Fail
+            } else if u.sync_errors > 0 {
+                Verdict::Warn
+            } else {
+                Verdict::Ok
+            };
+            check(
+                "usb clock",
+                verdict,
+                format!(
+                    "HSI48 trimmed by the CRS from {source}: {}, trim {} (32 = factory middle), {} sync errors",
+                    if u.synced {
+                        "synchronised"
+                    } else {
+                        "NEVER synchronised (check SYNCSRC and that USB is configured)"
+                    },
+                    u.trim,
+                    u.sync_errors
+                ),
+            )
+        }
+    });
+    lines.push(match stack {
+        None => missing("stack"),
+        Some(s) => {
+            let share = f64::from(s.peak) / f64::from(s.size.max(1));
+            let verdict = if share > 0.9 {
+                Verdict::Fail
+            } else if share > 0.75 || !s.guarded {
+                Verdict::Warn
+            } else {
+                Verdict::Ok
+            };
+            check(
+                "stack",
+                verdict,
+                format!(
+                    "{} of {} bytes used at most ({:.1}%), {}",
+                    s.peak,
+                    s.size,
+                    share * 100.0,
+                    if s.guarded {
+                        "guarded (an overflow faults)"
+                    } else {
+                        "NOT guarded (an overflow corrupts silently)"
+                    }
+                ),
+            )
+        }
+    });
+    lines.push(match camera_interface {
+        None => missing("camera interface"),
+        Some(c) => {
+            let verdict = if c.dma_transfer_errors > 0 {
+                Verdict::Fail
+            } else if c.overruns + c.sync_errors + c.dma_fifo_errors + c.fifo_not_drained > 0 {
+                Verdict::Warn
+            } else {
+                Verdict::Ok
+            };
+            check(
+                "camera interface",
+                verdict,
+                format!(
+                    "overruns {}, sync errors {}, DMA transfer errors {}, DMA FIFO errors {}, FIFO not drained at frame end {}",
+                    c.overruns, c.sync_errors, c.dma_transfer_errors, c.dma_fifo_errors, c.fifo_not_drained
+                ),
+            )
+        }
+    });
+    lines.push(match idle_permille {
+        None => missing("cpu idle"),
+        Some(p) => check(
+            "cpu idle",
+            if p < 100 { Verdict::Warn } else { Verdict::Ok },
+            format!(
+                "{:.1}% of the time asleep since the previous status request",
+                f64::from(p) / 10.0
+            ),
+        ),
+    });
+    lines.push(match status.reset_reason {
+        ResetReason::Unknown if simulated => missing("last reset"),
+        r @ (ResetReason::Watchdog | ResetReason::Brownout | ResetReason::Other) => {
+            check("last reset", Verdict::Warn, r.to_string())
+        }
+        r => check("last reset", Verdict::Ok, r.to_string()),
+    });
+    lines.push(match status.watchdog_ms {
+        None => missing("watchdog"),
+        Some(ms) => check(
+            "watchdog",
+            Verdict::Ok,
+            format!("{ms} ms, fed by the device loop"),
+        ),
+    });
+    let link_errors = status.crc_errors + status.decode_errors;
+    lines.push(check(
+        "counters",
+        if link_errors + status.overruns + status.pixel_errors > 0 {
+            Verdict::Warn
+        } else {
+            Verdict::Ok
+        },
+        format!(
+            "frames processed {}, dropped {}; CRC errors {}, decode errors {}, overruns {}, pixel errors {}",
+            status.frames_processed,
+            status.frames_dropped,
+            status.crc_errors,
+            status.decode_errors,
+            status.overruns,
+            status.pixel_errors
+        ),
+    ));
+    lines
+}
+
+/// Asks the device for its status (twice, `window` apart, when it reports
+/// its CPU's idle time, so that the idle share covers that window) and
+/// examines it.
+pub fn diagnose(client: &mut Client, window: Duration) -> Result<Vec<Check>> {
+    let t = Instant::now();
+    let mut status = client.status()?;
+    let mut round_trip = t.elapsed();
+    if status.health.idle_permille.is_some() {
+        std::thread::sleep(window);
+        let t = Instant::now();
+        status = client.status()?;
+        round_trip = t.elapsed();
+    }
+    Ok(examine(client.info(), &status, round_trip))
+}
+
+pub fn run(args: DoctorArgs) -> Result<()> {
+    if !(args.window.is_finite() && (0.0..=60.0).contains(&args.window)) {
+        bail!("--window {} must be between 0 and 60 seconds", args.window);
+    }
+    let mut client = Client::open(&args.port)?;
+    let lines = diagnose(&mut client, Duration::from_secs_f64(args.window))?;
+    println!("brightpix doctor: {}", args.port);
+    for line in &lines {
+        println!("{line}");
+    }
+    let failed = lines.iter().filter(|l| l.verdict == Verdict::Fail).count();
+    let warned = lines.iter().filter(|l| l.verdict == Verdict::Warn).count();
+    if failed > 0 {
+        bail!("{failed} check(s) failed, {warned} warning(s)");
+    }
+    println!("{warned} warning(s), no failures");
+    Ok(())
+}
