@@ -39,8 +39,27 @@
 //! - Hardware synchronisation (no embedded codes), continuous grab
 //!   (`CM` = 0), no crop, no JPEG, every frame (`FCRC` = 0), all bytes.
 //! - Every frame `width * height` pixels of the configured camera, a whole
-//!   number of 32-bit words; some vertical blanking between frames (the
-//!   frame-end interrupt reads the DMA position in it).
+//!   number of 16-byte DMA bursts (4 words: 8 pixels in 10/12/14-bit mode,
+//!   16 in 8-bit mode); some vertical blanking between frames (the
+//!   frame-end interrupt reads the DMA position in it, once the DCMI and
+//!   DMA FIFOs have drained).
+//!
+//! # Interrupts and the DMA
+//!
+//! - DMA1 stream 0 in FIFO mode with 4-word bursts to memory (MBURST INCR4,
+//!   FIFO threshold full: RM0433 DMA_SxCR bits 24:23, DMA_SxFCR DMDIS bit 2
+//!   and FTH bits 1:0): a quarter of the AXI bus transactions of direct
+//!   mode, and 16 bytes of buffering against bus stalls before the DCMI's
+//!   own FIFO overruns.
+//! - One DMA interrupt per ring half (half-transfer and transfer-complete)
+//!   and one DCMI interrupt per frame end; no line interrupt (it fired on
+//!   every camera line: ~0.5 M interrupts/s at 240 lines x 2 kHz). The ring
+//!   is sized so that a half is a few camera rows (`storage::RING_WORDS`):
+//!   the camera source is woken every half and at the frame end.
+//! - NDTR counts words read from the DCMI, some of which may still sit in
+//!   the DMA FIFO: [`write_index`] holds back to the last whole burst, less
+//!   one, unless the FIFO reads empty (then every counted word is in
+//!   memory), so the source never copies a word not yet written.
 
 use core::sync::atomic::{AtomicU32, Ordering};
 use core::task::Waker;
@@ -61,10 +80,10 @@ use embassy_sync::waitqueue::AtomicWaker;
 
 /// DMA1 stream 0; DMAMUX1 channel 0 feeds it.
 const STREAM: usize = 0;
-/// Wake the camera source every this many lines (and at every half ring
-/// and frame end): latency of a few rows without an interrupt-driven poll
-/// of the device loop for every row.
-const WAKE_EVERY_LINES: u32 = 4;
+/// Words per DMA burst to memory (MBURST INCR4 of 32-bit words).
+const BURST_WORDS: usize = 4;
+/// DMA_SxFCR.FS (bits 5:3) when the FIFO is empty.
+const FIFO_EMPTY: u8 = 0b100;
 /// Bound on the wait for the DCMI FIFO to drain at a frame end.
 const FIFO_DRAIN_SPINS: u32 = 1000;
 
@@ -73,8 +92,6 @@ static HALF_EVENTS: AtomicU32 = AtomicU32::new(0);
 /// Frame ends, recorded by the DCMI interrupt.
 static MARKS: FrameMarks = FrameMarks::new();
 static WAKER: AtomicWaker = AtomicWaker::new();
-/// Lines since the last wake-up.
-static LINES: AtomicU32 = AtomicU32::new(0);
 /// The ring's address and length, for the frame-end interrupt.
 static RING_LEN: AtomicU32 = AtomicU32::new(0);
 
@@ -82,9 +99,10 @@ static RING_LEN: AtomicU32 = AtomicU32::new(0);
 pub static DCMI_OVERRUNS: AtomicU32 = AtomicU32::new(0);
 pub static DCMI_SYNC_ERRORS: AtomicU32 = AtomicU32::new(0);
 pub static DMA_ERRORS: AtomicU32 = AtomicU32::new(0);
+pub static DMA_FIFO_ERRORS: AtomicU32 = AtomicU32::new(0);
 pub static FIFO_NOT_DRAINED: AtomicU32 = AtomicU32::new(0);
 
-/// The DCMI interrupt: frame ends (marks), lines (wake-ups), errors.
+/// The DCMI interrupt: frame ends (marks and wake-ups), errors.
 pub struct DcmiInterrupt;
 
 impl Handler<DcmiIrq> for DcmiInterrupt {
@@ -93,7 +111,6 @@ impl Handler<DcmiIrq> for DcmiInterrupt {
         let mis = dcmi.mis().read();
         dcmi.icr().write(|w| {
             w.set_frame_isc(mis.frame_mis());
-            w.set_line_isc(mis.line_mis());
             w.set_ovr_isc(mis.ovr_mis());
             w.set_err_isc(mis.err_mis());
             w.set_vsync_isc(mis.vsync_mis());
@@ -104,13 +121,12 @@ impl Handler<DcmiIrq> for DcmiInterrupt {
         if mis.err_mis() {
             DCMI_SYNC_ERRORS.fetch_add(1, Ordering::Relaxed);
         }
-        let mut wake = false;
         if mis.frame_mis() {
             // Vertical blanking: no new data. Let the last words leave the
-            // DCMI FIFO (the DMA takes them within a few bus cycles), then
-            // record where the DMA is.
+            // DCMI FIFO and then the DMA FIFO (its last burst; a frame is
+            // whole bursts), then record where the DMA is.
             let mut spins = 0;
-            while dcmi.sr().read().fne() && spins < FIFO_DRAIN_SPINS {
+            while (dcmi.sr().read().fne() || !dma_fifo_empty()) && spins < FIFO_DRAIN_SPINS {
                 spins += 1;
             }
             if spins == FIFO_DRAIN_SPINS {
@@ -119,14 +135,6 @@ impl Handler<DcmiIrq> for DcmiInterrupt {
             cortex_m::asm::dsb();
             let len = RING_LEN.load(Ordering::Relaxed) as usize;
             MARKS.record(DmaProgress::read(half_events, || write_index(len)));
-            LINES.store(0, Ordering::Relaxed);
-            wake = true;
-        }
-        if mis.line_mis() && LINES.fetch_add(1, Ordering::Relaxed) + 1 >= WAKE_EVERY_LINES {
-            LINES.store(0, Ordering::Relaxed);
-            wake = true;
-        }
-        if wake {
             WAKER.wake();
         }
     }
@@ -160,6 +168,12 @@ impl Handler<DMA1_STREAM0> for DmaInterrupt {
             DMA_ERRORS.fetch_add(1, Ordering::Relaxed);
             WAKER.wake();
         }
+        if isr.feif(n) {
+            // FIFO overrun/underrun (DMA_LISR FEIF0): the DMA did not get
+            // the memory bus in time; the DCMI overrun that follows is what
+            // loses pixels.
+            DMA_FIFO_ERRORS.fetch_add(1, Ordering::Relaxed);
+        }
     }
 }
 
@@ -167,12 +181,30 @@ fn half_events() -> u32 {
     HALF_EVENTS.load(Ordering::Acquire)
 }
 
+fn dma_fifo_empty() -> bool {
+    pac::DMA1.st(STREAM).fcr().read().fs().to_bits() == FIFO_EMPTY
+}
+
+/// The index of the next word not yet in memory. NDTR is read first: if
+/// the FIFO is empty after it, every word it counts has been written;
+/// otherwise up to a burst and a partial one may still be in the FIFO, so
+/// the index is held back to the previous whole burst (never behind the
+/// last half the interrupt counted, which keeps `DmaProgress` exact).
 fn write_index(len: usize) -> usize {
     let ndt = pac::DMA1.st(STREAM).ndtr().read().ndt() as usize;
+    let empty = dma_fifo_empty();
     // Reads of the ring that follow must not be hoisted above this.
     core::sync::atomic::fence(Ordering::Acquire);
     // NDTR counts down from `len` and reloads at 0 (circular mode).
-    (len - ndt.min(len)) % len
+    let index = (len - ndt.min(len)) % len;
+    if empty {
+        return index;
+    }
+    let half = len / 2;
+    let counted = (half_events() as usize & 1) * half;
+    let beyond = (index + len - counted) % len;
+    let held = (beyond / BURST_WORDS * BURST_WORDS).saturating_sub(BURST_WORDS);
+    (counted + held) % len
 }
 
 /// The DCMI pins, kept configured while the camera exists.
@@ -301,7 +333,6 @@ impl DmaRing for DcmiRing {
     fn start(&mut self) -> u32 {
         self.halt();
         HALF_EVENTS.store(0, Ordering::Release);
-        LINES.store(0, Ordering::Relaxed);
         // DMAMUX1 channel 0 -> DMA1 stream 0: the DCMI's request.
         pac::DMAMUX1
             .ccr(STREAM)
@@ -310,9 +341,13 @@ impl DmaRing for DcmiRing {
         st.par().write_value(pac::DCMI.dr().as_ptr() as u32);
         st.m0ar().write_value(self.ring as u32);
         st.ndtr().write(|w| w.set_ndt(self.len as u16));
-        // Direct mode: each word goes to memory as it is read, so NDTR never
-        // counts a word that is not in memory yet.
-        st.fcr().write(|w| w.set_dmdis(vals::Dmdis::ENABLED));
+        // FIFO mode, threshold full (4 words): memory writes in INCR4 bursts
+        // (`write_index` accounts for the words in the FIFO).
+        st.fcr().write(|w| {
+            w.set_dmdis(vals::Dmdis::DISABLED);
+            w.set_fth(vals::Fth::FULL);
+            w.set_feie(true);
+        });
         st.cr().write(|w| {
             w.set_dir(vals::Dir::PERIPHERAL_TO_MEMORY);
             w.set_circ(true);
@@ -320,15 +355,18 @@ impl DmaRing for DcmiRing {
             w.set_pinc(false);
             w.set_psize(vals::Size::BITS32);
             w.set_msize(vals::Size::BITS32);
+            w.set_mburst(vals::Burst::INCR4);
+            w.set_pburst(vals::Burst::SINGLE);
             w.set_pl(vals::Pl::VERY_HIGH);
             w.set_htie(true);
             w.set_tcie(true);
             w.set_teie(true);
             w.set_dmeie(true);
         });
-        // No line of the ring may stay in the cache from before (start-up
-        // code zeroed the ring through the cache): a dirty line evicted
-        // later would overwrite what the DMA wrote.
+        // `storage::take` zeroed the ring before the D-cache was enabled,
+        // so no dirty line of it exists; invalidate all of it anyway, so no
+        // line filled since (speculative reads, a previous capture) can be
+        // read in place of what the DMA writes, nor evicted over it.
         self.invalidate_lines(0, self.len * 4 / CACHE_LINE_BYTES);
         st.cr().modify(|w| w.set_en(true));
 
@@ -351,11 +389,12 @@ impl DmaRing for DcmiRing {
             w.set_vsync_isc(true);
             w.set_line_isc(true);
         });
+        // No line interrupt: the DMA's half events and the frame end wake
+        // the source.
         dcmi.ier().write(|w| {
             w.set_frame_ie(true);
             w.set_ovr_ie(true);
             w.set_err_ie(true);
-            w.set_line_ie(true);
         });
         dcmi.cr().modify(|w| w.set_enable(true));
         // Capture begins at the next frame start (VSYNC).
@@ -412,12 +451,13 @@ impl DmaRing for DcmiRing {
 }
 
 /// Hardware event counts: DCMI FIFO overruns, synchronisation errors, DMA
-/// errors, frame ends whose FIFO did not drain.
-pub fn hardware_events() -> (u32, u32, u32, u32) {
+/// transfer errors, DMA FIFO errors, frame ends whose FIFOs did not drain.
+pub fn hardware_events() -> (u32, u32, u32, u32, u32) {
     (
         DCMI_OVERRUNS.load(Ordering::Relaxed),
         DCMI_SYNC_ERRORS.load(Ordering::Relaxed),
         DMA_ERRORS.load(Ordering::Relaxed),
+        DMA_FIFO_ERRORS.load(Ordering::Relaxed),
         FIFO_NOT_DRAINED.load(Ordering::Relaxed),
     )
 }

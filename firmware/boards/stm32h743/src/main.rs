@@ -10,7 +10,13 @@
 //! - storage across DTCM, AXI SRAM and D2 SRAM ([`storage`]);
 //! - the independent watchdog, fed by the device loop, and the reset
 //!   reason, both in `Status` ([`watchdog`]);
-//! - 400 MHz from HSI via PLL1, I- and D-cache on; defmt over RTT.
+//! - the board's health in `Status.health` ([`health`]): silicon revision
+//!   and the AXI SRAM erratum fix, clocks and voltage scale read back, the
+//!   HSI48 trimming (CRS from OTG_FS's SOF), the stack's high-water mark
+//!   (painted, MPU-guarded: `brightpix_board_common::stack`), DCMI/DMA
+//!   error counters, CPU idle time;
+//! - 400 MHz from HSI via PLL1, I- and D-cache on; defmt over RTT (the
+//!   embassy drivers' logs too).
 //!
 //! NOT RUN ON HARDWARE: it builds; the camera source's logic is tested on
 //! the host (`tests/tests/camera_*.rs`); see firmware/README.md.
@@ -18,11 +24,12 @@
 #![no_main]
 
 mod dcmi;
+mod health;
 mod storage;
 mod usb_link;
 mod watchdog;
 
-use brightpix_board_common::executor;
+use brightpix_board_common::{executor, stack};
 use brightpix_firmware::camera::{DataWidth, DcmiSource};
 use brightpix_firmware::device::Device;
 use cortex_m_rt::entry;
@@ -57,9 +64,17 @@ const BOARD: &str = "stm32h743-nucleo";
 
 #[entry]
 fn main() -> ! {
-    // Storage first: AXI and D2 SRAM are zeroed before the D-cache is on.
+    stack::paint();
+    // Before anything reads the AXI SRAM (storage::take zeroes it).
+    health::fix_axi_sram_erratum();
+    // Storage next: AXI and D2 SRAM are zeroed before the D-cache is on.
     let memory = storage::take();
     let mut cp = cortex_m::Peripherals::take().unwrap();
+    stack::guard(&mut cp.MPU);
+    // The cycle counter, for the CPU's idle time (DWT_LAR unlock on M7).
+    cp.DCB.enable_trace();
+    cortex_m::peripheral::DWT::unlock();
+    cp.DWT.enable_cycle_counter();
     cp.SCB.enable_icache();
     cp.SCB.enable_dcache(&mut cp.CPUID);
     executor::run(move |spawner: Spawner| spawner.spawn(device_task(memory).unwrap()))
@@ -70,9 +85,12 @@ fn clocks() -> embassy_stm32::Config {
     let mut config = embassy_stm32::Config::default();
     config.rcc.hsi = Some(HSIPrescaler::DIV1);
     config.rcc.csi = true;
+    // USB kernel clock. Not `sync_from_usb`: embassy then trims HSI48 from
+    // USB1's (OTG_HS) SOF; this board's USB is OTG_FS = USB2, whose SOF
+    // `health::start_usb_clock_trimming` selects after init.
     config.rcc.hsi48 = Some(Hsi48Config {
-        sync_from_usb: true,
-    }); // USB kernel clock
+        sync_from_usb: false,
+    });
     config.rcc.pll1 = Some(Pll {
         source: PllSource::HSI, // 64 MHz
         prediv: PllPreDiv::DIV4,
@@ -88,7 +106,7 @@ fn clocks() -> embassy_stm32::Config {
     config.rcc.apb2_pre = APBPrescaler::DIV2;
     config.rcc.apb3_pre = APBPrescaler::DIV2;
     config.rcc.apb4_pre = APBPrescaler::DIV2;
-    config.rcc.voltage_scale = VoltageScale::Scale1;
+    config.rcc.voltage_scale = VoltageScale::Scale1; // health::VOLTAGE_SCALE
     config.rcc.mux.usbsel = mux::Usbsel::HSI48;
     // DMA interrupts (the DCMI ring's half events among them) at the top.
     config.dma_interrupt_priority = Priority::P0;
@@ -109,9 +127,12 @@ async fn device_task(memory: Memory) {
     let (axi, d2, dtcm) = memory;
     let reset = watchdog::reset_reason();
     let p = embassy_stm32::init(clocks());
+    health::start_usb_clock_trimming();
+    let h = health::health();
     defmt::info!(
-        "brightpix-stm32h743: hello (reset: {})",
-        defmt::Debug2Format(&reset)
+        "brightpix-stm32h743: hello (reset: {}); {}",
+        defmt::Debug2Format(&reset),
+        defmt::Debug2Format(&h)
     );
     // From here on the device loop (or the wait for a host below) must run.
     let iwdg = watchdog::Iwdg::start(p.IWDG1);
@@ -119,8 +140,9 @@ async fn device_task(memory: Memory) {
     // --- USB CDC-ACM ---------------------------------------------------------
     let mut ep_out_buffer = [0u8; 256];
     let mut usb_config = usb::Config::default();
-    // NUCLEO-H743ZI: VBUS of the user USB connector is wired to PA9.
-    usb_config.vbus_detection = true;
+    // Feature `vbus-sensing` (Cargo.toml): only where VBUS is wired to PA9,
+    // or enumeration never starts.
+    usb_config.vbus_detection = cfg!(feature = "vbus-sensing");
     let driver = Driver::new_fs(
         p.USB_OTG_FS,
         Irqs,
@@ -167,6 +189,7 @@ async fn device_task(memory: Memory) {
     let buffers = storage::device_buffers(&mut axi.background, &mut axi.engine, d2, device_memory);
     let mut device = Device::new(UsbLink::new(class), camera, buffers, BOARD).with_watchdog(iwdg);
     device.set_reset_reason(reset);
+    device.set_health(health::health);
     let capabilities = device.capabilities();
     defmt::info!(
         "device: {=u32} sub-apertures, {=u32} camera pixels of maps, {=u32} open windows, {=u32} pool entries",
@@ -187,16 +210,25 @@ async fn device_task(memory: Memory) {
             {
                 brightpix_firmware::device::Watchdog::feed(device.watchdog());
             }
-            defmt::info!("usb: connected");
-            let Err(e) = device.run().await;
-            let (overruns, sync_errors, dma_errors, undrained) = dcmi::hardware_events();
             defmt::info!(
-                "usb: link ended ({}); camera {}; DCMI overruns {=u32}, sync errors {=u32}, DMA errors {=u32}, FIFO not drained {=u32}",
+                "usb: connected; HSI48 {}",
+                if health::usb_clock_synced() {
+                    "synchronised to OTG_FS SOF by the CRS"
+                } else {
+                    "NOT YET synchronised (CRS SYNCOKF clear)"
+                }
+            );
+            let Err(e) = device.run().await;
+            let (overruns, sync_errors, dma_errors, fifo_errors, undrained) =
+                dcmi::hardware_events();
+            defmt::info!(
+                "usb: link ended ({}); camera {}; DCMI overruns {=u32}, sync errors {=u32}, DMA errors {=u32}, DMA FIFO errors {=u32}, FIFOs not drained {=u32}",
                 defmt::Debug2Format(&e),
                 device.source().stats(),
                 overruns,
                 sync_errors,
                 dma_errors,
+                fifo_errors,
                 undrained
             );
         }
