@@ -10,6 +10,7 @@ pub mod doctor;
 mod endtoend;
 mod paper;
 mod process;
+mod progress;
 mod simulate_device;
 mod soak;
 mod status;

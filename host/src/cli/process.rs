@@ -2,7 +2,11 @@
 
 use crate::config_file::ProcessingConfig;
 use crate::engine_runner::HostEngine;
-use crate::io::{check_outputs, stage_array, FrameShape, FrameSource, Staged};
+use crate::io::results::stage_results;
+use crate::io::{
+    check_result_outputs, stage_array, FrameShape, FrameSource, Layout, Provenance, Raw, Results,
+    Staged,
+};
 use crate::parallel::ParallelEngine;
 use crate::reference::Reference;
 use anyhow::{Context, Result};
@@ -12,10 +16,13 @@ use std::time::Instant;
 
 #[derive(Args)]
 #[command(
-    about = "Compute slopes from recorded frames (.npy or FITS cube) into a .npy of shape (frames, sub-apertures, 2)",
-    after_help = "Examples:\n  brightpix process --config examples/canary.toml --frames frames.fits --out slopes.npy\n  brightpix process --config examples/canary.toml --frames frames.npy --out ref.npy --reference\n\n\
+    about = "Compute slopes, flux and validity from recorded frames (.npy or FITS cube) into .npy, FITS or CSV",
+    after_help = "Examples:\n  brightpix process --config examples/canary.toml --frames frames.fits --out slopes.npy\n  brightpix process --config examples/canary.toml --frames frames.npy --out ref.fits --reference\n  brightpix process --config examples/canary.toml --frames frames.npy --out slopes.npy --layout vector\n  brightpix process --config examples/canary.toml --frames frames.npy --out slopes.csv\n\n\
 Slopes are float64 pixels, [x, y], reference slopes subtracted, 0.0 for invalid sub-apertures\n\
-(flux at or below min_flux). Engine and reference give identical numbers (see shared/SPEC.md)."
+(flux at or below min_flux); flux is float64 counts; validity 0/1. --out x.npy writes x.npy,\n\
+x.flux.npy, x.valid.npy and x.json (provenance); x.fits one file with SLOPES, FLUX and VALID\n\
+extensions and provenance keywords; x.csv one row per frame and sub-aperture (docs/OUTPUTS.md).\n\
+Engine and reference give identical numbers (see shared/SPEC.md)."
 )]
 pub struct ProcessArgs {
     /// Processing configuration (TOML, see docs/CONFIG.md).
@@ -24,9 +31,13 @@ pub struct ProcessArgs {
     /// Frames: .npy (uint8/uint16, shape (frames, height, width)) or FITS cube.
     #[arg(long)]
     frames: PathBuf,
-    /// Output slopes (.npy, float64, shape (frames, sub-apertures, 2), pixels).
+    /// Output: .npy (with .flux.npy, .valid.npy, .json beside it), .fits or .csv.
     #[arg(long)]
     out: PathBuf,
+    /// Slopes layout: pairs (frames, sub-apertures, 2) or vector (frames, 2 x sub-apertures),
+    /// [x_0..x_S-1, y_0..y_S-1] as AO codes (DARC, COMPASS, soapy) take them.
+    #[arg(long, value_enum, default_value_t = Layout::Pairs)]
+    layout: Layout,
     /// Use the reference implementation (full sort per sub-aperture) instead of the streaming engine.
     #[arg(long)]
     reference: bool,
@@ -37,7 +48,7 @@ pub struct ProcessArgs {
     /// Worker threads for the engine (default: all cores). Results do not depend on it.
     #[arg(long, value_name = "N", conflicts_with_all = ["reference", "chunk"])]
     threads: Option<usize>,
-    /// Also write the validity of each sub-aperture (uint8 0/1, shape (frames, sub-apertures)).
+    /// Also write the validity alone to this .npy or FITS (uint8 0/1, shape (frames, sub-apertures)).
     #[arg(long, value_name = "FILE")]
     valid_out: Option<PathBuf>,
 }
@@ -52,20 +63,26 @@ pub fn run(args: ProcessArgs) -> Result<()> {
         .into_iter()
         .flatten()
         .collect();
-    check_outputs(&[&args.config, &args.frames], &outputs)?;
+    check_result_outputs(&[&args.config, &args.frames], &outputs)?;
+    if let Some(valid_out) = &args.valid_out {
+        crate::io::FileFormat::from_path(valid_out)?;
+    }
     let config = ProcessingConfig::load(&args.config)?;
     let view = config.view();
     let mut source = FrameSource::open_for_camera(&args.frames, &view.camera)?;
     let frames = source.len();
     let subapertures = view.windows.len();
-    let mut slopes = Vec::with_capacity(frames * subapertures * 2);
-    let mut valid = Vec::with_capacity(frames * subapertures);
+    let mut results = Results::new(subapertures);
     let started = Instant::now();
     let mut threads = 1;
-    let mut push = |x: i32, y: i32, ok: bool| {
-        slopes.push(x as f64 / 65536.0);
-        slopes.push(y as f64 / 65536.0);
-        valid.push(ok as u8);
+    let progress = super::progress::Progress::new(frames as u64, "frames");
+    let mut push = |slope_x: i32, slope_y: i32, flux: i64, valid: bool| {
+        results.push(Some(Raw {
+            slope_x,
+            slope_y,
+            flux,
+            valid,
+        }));
     };
     if args.reference {
         let mut reference = Reference::new(&view).context("configuration")?;
@@ -76,8 +93,9 @@ pub fn run(args: ProcessArgs) -> Result<()> {
                 .process_frame(&frame)
                 .with_context(|| format!("frame {index}"))?;
             for o in outputs {
-                push(o.slope_x, o.slope_y, o.valid);
+                push(o.slope_x, o.slope_y, o.flux, o.valid);
             }
+            progress.inc(1);
         }
     } else if let Some(chunk) = args.chunk {
         let mut engine = HostEngine::new(view).context("configuration")?;
@@ -88,8 +106,9 @@ pub fn run(args: ProcessArgs) -> Result<()> {
                 .process([frame.as_slice()], chunk)
                 .map_err(|(_, e)| anyhow::anyhow!("frame {index}: {e}"))?;
             for r in results.iter().flatten() {
-                push(r.slope_x, r.slope_y, r.valid);
+                push(r.slope_x, r.slope_y, r.flux, r.valid);
             }
+            progress.inc(1);
         }
     } else {
         let mut engine = ParallelEngine::new(&view, args.threads).context("configuration")?;
@@ -116,20 +135,37 @@ pub fn run(args: ProcessArgs) -> Result<()> {
                 }
                 other => anyhow::Error::new(other),
             })?;
-            for (slope, valid) in results.slopes.iter().zip(&results.valid) {
-                push(slope[0], slope[1], *valid);
+            for ((slope, flux), valid) in
+                results.slopes.iter().zip(&results.flux).zip(&results.valid)
+            {
+                push(slope[0], slope[1], *flux, *valid);
             }
+            progress.inc(count as u64);
             first += count;
         }
     }
     let elapsed = started.elapsed();
+    progress.finish();
+    let producer = if args.reference {
+        "brightpix process (reference)"
+    } else {
+        "brightpix process (streaming engine)"
+    };
+    let mut provenance = Provenance::of(producer, &view, Some(&args.config));
+    provenance.frames_source = Some(args.frames.display().to_string());
     // Every output whole, or none: stage them all, then move them in place.
-    let mut staged = vec![stage_array(&args.out, &[frames, subapertures, 2], &slopes)?];
+    let mut staged = stage_results(&args.out, &results, &provenance, args.layout)?;
     if let Some(path) = &args.valid_out {
-        staged.push(stage_array(path, &[frames, subapertures], &valid)?);
+        staged.push(stage_array(path, &[frames, subapertures], &results.valid)?);
     }
     Staged::commit_all(staged)?;
-    let invalid = valid.iter().filter(|&&v| v == 0).count();
+    let invalid = results.valid.iter().filter(|&&v| v == 0).count();
+    let all_invalid = results.frames_all_invalid();
+    if all_invalid > 0 {
+        eprintln!(
+            "brightpix: warning: in {all_invalid} of {frames} frames every sub-aperture is invalid (flux at or below min_flux): check the frames, background and min_flux"
+        );
+    }
     let seconds = elapsed.as_secs_f64().max(1e-9);
     let pixels = (frames * view.camera.pixel_count()) as f64;
     eprintln!(

@@ -15,10 +15,15 @@
 //! `[frames, height, width]`.
 
 pub mod fits;
+mod fits_out;
 pub mod npy;
 pub mod output;
+pub mod results;
 
 pub use output::{check_outputs, Appender, Staged};
+pub use results::{
+    check_result_outputs, write_results, Layout, Provenance, Raw, Results, ResultsFormat,
+};
 
 use std::fmt;
 use std::fs::File;

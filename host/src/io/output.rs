@@ -26,6 +26,14 @@ use super::{FileFormat, IoError};
 /// same file as any input or any other output (compared by device and inode
 /// when the file exists, and by canonical path otherwise).
 pub fn check_outputs(inputs: &[&Path], outputs: &[&Path]) -> Result<(), IoError> {
+    check_paths(inputs, outputs)?;
+    outputs
+        .iter()
+        .try_for_each(|out| FileFormat::from_path(out).map(drop))
+}
+
+/// [`check_outputs`] without the extension check.
+pub(crate) fn check_paths(inputs: &[&Path], outputs: &[&Path]) -> Result<(), IoError> {
     let identities: Vec<(PathBuf, Option<(u64, u64)>)> =
         inputs.iter().map(|p| identity(p)).collect();
     let mut seen: Vec<(PathBuf, Option<(u64, u64)>)> = Vec::new();
@@ -58,7 +66,6 @@ pub fn check_outputs(inputs: &[&Path], outputs: &[&Path]) -> Result<(), IoError>
             ));
         }
         seen.push(id);
-        FileFormat::from_path(out)?;
     }
     Ok(())
 }
