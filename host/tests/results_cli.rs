@@ -238,3 +238,48 @@ fn bad_outputs_are_refused_before_any_work() {
     assert!(!s.exists());
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// Frames in a tile-compressed image extension (the primary HDU empty),
+/// chosen by `--hdu`, give the same results as the same frames in a .npy.
+#[test]
+fn a_tile_compressed_extension_is_processed_like_the_npy() {
+    use fitsio::images::{ImageDescription, ImageType};
+    let dir = scratch("hdu");
+    let (config, frames, pixels) = case(&dir, 4);
+    let packed = dir.join("packed.fits");
+    {
+        let name = format!("{}[compress R]", packed.display());
+        let mut f = fitsio::FitsFile::create(&name).open().unwrap();
+        let description = ImageDescription {
+            data_type: ImageType::UnsignedShort,
+            dimensions: &[4, 16, 16],
+        };
+        let hdu = f.create_image("SCI", &description).unwrap();
+        hdu.write_image(&mut f, &pixels).unwrap();
+    }
+    let from_npy = dir.join("a.npy");
+    let from_fits = dir.join("b.npy");
+    process(&config, &frames, &from_npy, &[]);
+    process(&config, &packed, &from_fits, &["--hdu", "SCI"]);
+    for suffix in ["npy", "flux.npy", "valid.npy"] {
+        let a = read_array(from_npy.with_extension(suffix)).unwrap();
+        let b = read_array(from_fits.with_extension(suffix)).unwrap();
+        assert_eq!(a, b, "{suffix}");
+    }
+    let (ok, text) = run(&[
+        "process",
+        "--config",
+        config.to_str().unwrap(),
+        "--frames",
+        packed.to_str().unwrap(),
+        "--hdu",
+        "DARK",
+        "--out",
+        dir.join("c.npy").to_str().unwrap(),
+    ]);
+    assert!(
+        !ok && text.contains("no HDU 'DARK'") && text.contains("'SCI'"),
+        "{text}"
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -28,9 +28,13 @@ pub struct ProcessArgs {
     /// Processing configuration (TOML, see docs/CONFIG.md).
     #[arg(long)]
     config: PathBuf,
-    /// Frames: .npy (uint8/uint16, shape (frames, height, width)) or FITS cube.
+    /// Frames: .npy (uint8/uint16, shape (frames, height, width)) or FITS cube (the first HDU
+    /// holding an image, tile-compressed included; BSCALE/BZERO applied).
     #[arg(long)]
     frames: PathBuf,
+    /// FITS HDU of the frames: an index (0: primary) or EXTNAME (default: the first image).
+    #[arg(long, value_name = "HDU")]
+    hdu: Option<String>,
     /// Output: .npy (with .flux.npy, .valid.npy, .json beside it), .fits or .csv.
     #[arg(long)]
     out: PathBuf,
@@ -69,7 +73,8 @@ pub fn run(args: ProcessArgs) -> Result<()> {
     }
     let config = ProcessingConfig::load(&args.config)?;
     let view = config.view();
-    let mut source = FrameSource::open_for_camera(&args.frames, &view.camera)?;
+    let mut source = FrameSource::open_hdu(&args.frames, args.hdu.as_deref())?;
+    source.set_camera(&view.camera)?;
     let frames = source.len();
     let subapertures = view.windows.len();
     let mut results = Results::new(subapertures);

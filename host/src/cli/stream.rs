@@ -30,9 +30,13 @@ pub struct StreamArgs {
     /// Processing configuration (TOML, see docs/CONFIG.md), uploaded first.
     #[arg(long)]
     config: PathBuf,
-    /// Frames: .npy (uint8/uint16, shape (frames, height, width)) or FITS cube.
+    /// Frames: .npy (uint8/uint16, shape (frames, height, width)) or FITS cube (the first HDU
+    /// holding an image, tile-compressed included; BSCALE/BZERO applied).
     #[arg(long)]
     frames: PathBuf,
+    /// FITS HDU of the frames: an index (0: primary) or EXTNAME (default: the first image).
+    #[arg(long, value_name = "HDU")]
+    hdu: Option<String>,
     /// Check every result against the reference implementation.
     #[arg(long)]
     verify: bool,
@@ -70,7 +74,8 @@ pub fn run(args: StreamArgs) -> Result<()> {
     }
     let config = ProcessingConfig::load(&args.config)?;
     let view = config.view();
-    let mut source = FrameSource::open_for_camera(&args.frames, &view.camera)?;
+    let mut source = FrameSource::open_hdu(&args.frames, args.hdu.as_deref())?;
+    source.set_camera(&view.camera)?;
     let total = args.count.unwrap_or(usize::MAX).min(source.len());
     let subapertures = view.windows.len();
     let mut verifier = Verifier::new(&view, args.show).context("configuration")?;

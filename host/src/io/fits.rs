@@ -1,364 +1,21 @@
-//! A minimal FITS reader and writer for primary-HDU images.
-//!
-//! Reading: the primary header (2880-byte blocks of 80-character cards) and
-//! the image that follows it, BITPIX 8, 16, 32, 64, -32 or -64, big-endian,
-//! `NAXIS1` fastest. Physical values are `BZERO + BSCALE * stored`; integer
-//! pixels equal to `BLANK` are undefined (NaN in maps, an error in frames).
-//! Extensions after the primary HDU are ignored; an image stored only in an
-//! extension (primary `NAXIS = 0`) is not supported.
-//!
-//! Writing: `SIMPLE`, `BITPIX`, `NAXISn`, and for `u16` data `BZERO = 32768`
-//! / `BSCALE = 1`; header and data padded to 2880 bytes.
-//!
-//! Why not a crate: `fitsrs` 0.4 reads these images but hands back stored
-//! values without applying `BSCALE`/`BZERO`, cannot write, and brings in
-//! async runtimes, WCS and compression crates; `fitsio` needs the C cfitsio.
+//! The FITS writer of plain arrays (`write_array`, and the growing image of
+//! `stream --out`, [`super::Appender`]): a primary-HDU image, `SIMPLE`,
+//! `BITPIX`, `NAXISn`, and for `u16` data `BZERO = 32768` / `BSCALE = 1`;
+//! header and data padded to 2880 bytes. It stays hand-written because the
+//! appender must rewrite `NAXIS3` in place after every frame so that a killed
+//! process leaves a valid file, which cfitsio's buffered writes do not
+//! promise. Reading (every HDU, tile compression, scaling) is cfitsio's:
+//! `fits_in.rs`; results with extensions and keywords: `fits_out.rs`.
 
 use std::fs::File;
-use std::io::{BufReader, BufWriter, Read, Seek, Write};
+use std::io::{BufWriter, Write};
 use std::path::Path;
 
-use super::{shape_string, Array, Element, Encoding, FrameLayout, FrameShape, IoError};
+use super::{Element, IoError};
 
 /// FITS block size in bytes.
 pub const BLOCK: usize = 2880;
 const CARD: usize = 80;
-/// Give up looking for `END` after this many header blocks.
-const MAX_HEADER_BLOCKS: usize = 10_000;
-
-/// The parts of a primary header this reader uses.
-#[derive(Clone, Debug, PartialEq)]
-pub struct FitsHeader {
-    pub bitpix: i32,
-    /// `NAXIS1, NAXIS2, ...`: fastest axis first (the reverse of NumPy order).
-    pub naxes: Vec<usize>,
-    pub bscale: f64,
-    pub bzero: f64,
-    pub blank: Option<i64>,
-    /// Byte offset of the data (the header's length).
-    pub data_offset: u64,
-}
-
-impl FitsHeader {
-    /// Shape in NumPy order (slowest first): `[NAXISn, ..., NAXIS1]`.
-    pub fn shape(&self) -> Vec<usize> {
-        self.naxes.iter().rev().copied().collect()
-    }
-    pub fn bytes_per_value(&self) -> usize {
-        (self.bitpix.unsigned_abs() / 8) as usize
-    }
-    pub fn value_count(&self) -> usize {
-        if self.naxes.is_empty() {
-            0
-        } else {
-            self.naxes.iter().product()
-        }
-    }
-}
-
-/// A header card's value, as far as this reader cares.
-#[derive(Clone, Debug, PartialEq)]
-enum Value {
-    Logical(bool),
-    Integer(i64),
-    Real(f64),
-    Other(String),
-}
-
-impl Value {
-    fn as_f64(&self) -> Option<f64> {
-        match self {
-            Value::Integer(i) => Some(*i as f64),
-            Value::Real(r) => Some(*r),
-            _ => None,
-        }
-    }
-}
-
-fn parse_value(field: &str) -> Value {
-    let field = field.trim_start();
-    if let Some(rest) = field.strip_prefix('\'') {
-        // A string: '' is an escaped quote; the comment follows the closing quote.
-        let mut s = String::new();
-        let mut chars = rest.chars().peekable();
-        while let Some(c) = chars.next() {
-            if c == '\'' {
-                if chars.peek() == Some(&'\'') {
-                    chars.next();
-                    s.push('\'');
-                } else {
-                    break;
-                }
-            } else {
-                s.push(c);
-            }
-        }
-        return Value::Other(s.trim_end().to_string());
-    }
-    let text = field.split('/').next().unwrap_or("").trim();
-    match text {
-        "T" => return Value::Logical(true),
-        "F" => return Value::Logical(false),
-        _ => {}
-    }
-    if let Ok(i) = text.parse::<i64>() {
-        return Value::Integer(i);
-    }
-    if let Ok(r) = text.replace(['D', 'd'], "E").parse::<f64>() {
-        return Value::Real(r);
-    }
-    Value::Other(text.to_string())
-}
-
-/// Reads the primary header from the start of `reader`.
-pub fn read_header(path: &Path, reader: &mut impl Read) -> Result<FitsHeader, IoError> {
-    let mut cards: Vec<(String, Option<Value>)> = Vec::new();
-    let mut block = vec![0u8; BLOCK];
-    let mut blocks = 0usize;
-    'blocks: loop {
-        if blocks == MAX_HEADER_BLOCKS {
-            return Err(IoError::malformed(path, "FITS header has no END card"));
-        }
-        if let Err(e) = reader.read_exact(&mut block) {
-            return Err(if e.kind() == std::io::ErrorKind::UnexpectedEof {
-                if blocks == 0 {
-                    IoError::malformed(path, "not a FITS file: shorter than one 2880-byte block")
-                } else {
-                    IoError::malformed(path, "FITS header ends before its END card")
-                }
-            } else {
-                IoError::io(path, e)
-            });
-        }
-        blocks += 1;
-        for card in block.chunks_exact(CARD) {
-            if !card.iter().all(|&b| (0x20..=0x7e).contains(&b)) {
-                return Err(IoError::malformed(
-                    path,
-                    if cards.is_empty() {
-                        "not a FITS file (it does not start with SIMPLE = T)".to_string()
-                    } else {
-                        format!(
-                            "FITS header card {} is not printable ASCII",
-                            cards.len() + 1
-                        )
-                    },
-                ));
-            }
-            let card = std::str::from_utf8(card).expect("ASCII checked");
-            let keyword = card[..8].trim_end().to_string();
-            if keyword == "END" {
-                break 'blocks;
-            }
-            let value = (&card[8..10] == "= ").then(|| parse_value(&card[10..]));
-            if cards.is_empty() && !(keyword == "SIMPLE" && value == Some(Value::Logical(true))) {
-                return Err(IoError::malformed(
-                    path,
-                    "not a FITS file (it does not start with SIMPLE = T)",
-                ));
-            }
-            cards.push((keyword, value));
-        }
-    }
-    let find = |key: &str| {
-        cards
-            .iter()
-            .find(|(k, _)| k == key)
-            .and_then(|(_, v)| v.clone())
-    };
-    let integer = |key: &str| -> Result<Option<i64>, IoError> {
-        match find(key) {
-            None => Ok(None),
-            Some(Value::Integer(i)) => Ok(Some(i)),
-            Some(other) => Err(IoError::malformed(
-                path,
-                format!("FITS keyword {key} is {other:?}, expected an integer"),
-            )),
-        }
-    };
-    let required = |key: &str| -> Result<i64, IoError> {
-        integer(key)?.ok_or_else(|| IoError::malformed(path, format!("FITS header lacks {key}")))
-    };
-    let real = |key: &str, default: f64| -> Result<f64, IoError> {
-        match find(key) {
-            None => Ok(default),
-            Some(v) => v.as_f64().ok_or_else(|| {
-                IoError::malformed(
-                    path,
-                    format!("FITS keyword {key} is {v:?}, expected a number"),
-                )
-            }),
-        }
-    };
-    let bitpix = required("BITPIX")?;
-    if ![8, 16, 32, 64, -32, -64].contains(&bitpix) {
-        return Err(IoError::malformed(
-            path,
-            format!("FITS BITPIX = {bitpix}; expected 8, 16, 32, 64, -32 or -64"),
-        ));
-    }
-    let naxis = required("NAXIS")?;
-    if !(0..=999).contains(&naxis) {
-        return Err(IoError::malformed(
-            path,
-            format!("FITS NAXIS = {naxis} is invalid"),
-        ));
-    }
-    let mut naxes = Vec::with_capacity(naxis as usize);
-    for k in 1..=naxis {
-        let n = required(&format!("NAXIS{k}"))?;
-        if n < 0 {
-            return Err(IoError::malformed(
-                path,
-                format!("FITS NAXIS{k} = {n} is negative"),
-            ));
-        }
-        naxes.push(n as usize);
-    }
-    if naxes.first() == Some(&0) && find("GROUPS") == Some(Value::Logical(true)) {
-        return Err(IoError::unexpected(
-            path,
-            "FITS random groups",
-            "a primary-HDU image",
-        ));
-    }
-    Ok(FitsHeader {
-        bitpix: bitpix as i32,
-        naxes,
-        bscale: real("BSCALE", 1.0)?,
-        bzero: real("BZERO", 0.0)?,
-        blank: if bitpix > 0 { integer("BLANK")? } else { None },
-        data_offset: (blocks * BLOCK) as u64,
-    })
-}
-
-/// Big-endian signed integer of 1 (unsigned, as FITS BITPIX 8), 2, 4 or 8 bytes.
-pub(crate) fn be_int(bytes: &[u8]) -> i64 {
-    match bytes.len() {
-        1 => bytes[0] as i64,
-        2 => i16::from_be_bytes([bytes[0], bytes[1]]) as i64,
-        4 => i32::from_be_bytes(bytes.try_into().unwrap()) as i64,
-        8 => i64::from_be_bytes(bytes.try_into().unwrap()),
-        n => unreachable!("no {n}-byte FITS integer"),
-    }
-}
-
-fn open_header(path: &Path) -> Result<(BufReader<File>, FitsHeader), IoError> {
-    let file = File::open(path).map_err(|e| IoError::io(path, e))?;
-    let mut reader = BufReader::new(file);
-    let header = read_header(path, &mut reader)?;
-    if header.naxes.is_empty() {
-        return Err(IoError::unexpected(
-            path,
-            "no image in the primary HDU (NAXIS = 0)",
-            "a primary-HDU image (images in FITS extensions are not supported)",
-        ));
-    }
-    Ok((reader, header))
-}
-
-/// Reads the primary image as physical values (`BZERO + BSCALE * stored`).
-pub fn read_array(path: &Path) -> Result<Array, IoError> {
-    let (mut reader, header) = open_header(path)?;
-    let count = header.value_count();
-    let size = header.bytes_per_value();
-    let mut bytes = vec![0u8; count * size];
-    reader.read_exact(&mut bytes).map_err(|e| {
-        if e.kind() == std::io::ErrorKind::UnexpectedEof {
-            IoError::malformed(
-                path,
-                format!(
-                    "file is truncated: the FITS image {} needs {} data bytes",
-                    shape_string(&header.shape()),
-                    count * size
-                ),
-            )
-        } else {
-            IoError::io(path, e)
-        }
-    })?;
-    let (scale, zero) = (header.bscale, header.bzero);
-    let physical = |v: f64| zero + scale * v;
-    let data: Vec<f64> = match header.bitpix {
-        -32 => bytes
-            .chunks_exact(4)
-            .map(|b| physical(f32::from_be_bytes(b.try_into().unwrap()) as f64))
-            .collect(),
-        -64 => bytes
-            .chunks_exact(8)
-            .map(|b| physical(f64::from_be_bytes(b.try_into().unwrap())))
-            .collect(),
-        _ => bytes
-            .chunks_exact(size)
-            .map(|b| {
-                let raw = be_int(b);
-                if header.blank == Some(raw) {
-                    f64::NAN
-                } else {
-                    physical(raw as f64)
-                }
-            })
-            .collect(),
-    };
-    Ok(Array {
-        shape: header.shape(),
-        data,
-    })
-}
-
-/// Locates the frames of an integer FITS image of NAXIS 2 or 3.
-pub(crate) fn frame_layout(path: &Path, file: &mut File) -> Result<FrameLayout, IoError> {
-    let header = {
-        let mut reader = BufReader::new(&mut *file);
-        read_header(path, &mut reader)?
-    };
-    file.rewind().map_err(|e| IoError::io(path, e))?;
-    let expected = "an integer image (BITPIX 8, 16, 32 or 64, BSCALE 1, integer BZERO) \
-                    of NAXIS 2 (one frame) or 3 (NAXIS3 frames)";
-    let found = format!(
-        "BITPIX {}, BSCALE {}, BZERO {}, shape {} (NAXIS = {})",
-        header.bitpix,
-        header.bscale,
-        header.bzero,
-        shape_string(&header.shape()),
-        header.naxes.len()
-    );
-    if header.bitpix < 0
-        || header.bscale != 1.0
-        || header.bzero.fract() != 0.0
-        || header.bzero.abs() > (1u64 << 62) as f64
-    {
-        return Err(IoError::unexpected(path, found, expected));
-    }
-    let shape = match header.naxes[..] {
-        [width, height] => FrameShape {
-            frames: 1,
-            height,
-            width,
-        },
-        [width, height, frames] => FrameShape {
-            frames,
-            height,
-            width,
-        },
-        _ => return Err(IoError::unexpected(path, found, expected)),
-    };
-    let encoding = if header.bitpix == 8 && header.bzero == 0.0 && header.blank.is_none() {
-        Encoding::U8
-    } else {
-        Encoding::FitsInt {
-            bytes: header.bytes_per_value(),
-            zero: header.bzero as i64,
-            blank: header.blank,
-        }
-    };
-    Ok(FrameLayout {
-        shape,
-        data_offset: header.data_offset,
-        encoding,
-        preloaded: None,
-    })
-}
 
 fn card(key: &str, value: &str, comment: &str) -> String {
     let mut c = format!("{key:<8}= {value:>20}");
@@ -450,10 +107,10 @@ mod tests {
             &bytes[BLOCK..BLOCK + 8],
             &[0x80, 0x00, 0x80, 0x01, 0x00, 0x00, 0x7f, 0xff]
         );
-        let header = read_header(&path, &mut &bytes[..]).unwrap();
-        assert_eq!(header.naxes, vec![3, 2]);
-        assert_eq!(header.bzero, 32768.0);
-        assert_eq!(header.data_offset, BLOCK as u64);
+        // cfitsio reads it back
+        let back = read_array(&path).unwrap();
+        assert_eq!(back.shape, [2, 3]);
+        assert_eq!(back.data, [0.0, 1.0, 32768.0, 65535.0, 2.0, 3.0]);
     }
 
     #[test]
@@ -526,9 +183,13 @@ mod tests {
         let a = read_array(&p).unwrap();
         assert_eq!(a.data[..3], [105.0, 99.0, 103.5]);
         assert!(a.data[3].is_nan());
-        // not integer frames
-        let msg = FrameSource::open(&p).unwrap_err().to_string();
-        assert!(msg.contains("BSCALE 0.5"), "{msg}");
+        // As frames: the scaled 105 is a count; 99.0 * 0.5 + 100 = 149.5 is not.
+        let mut source = FrameSource::open(&p).unwrap();
+        let msg = source.read_frame(0).unwrap_err().to_string();
+        assert!(
+            msg.contains("row 1, column 0") && msg.contains("not a whole camera count"),
+            "{msg}"
+        );
     }
 
     #[test]
@@ -616,74 +277,112 @@ mod tests {
     }
 
     #[test]
-    fn float_frames_and_bad_headers_rejected() {
+    fn float_frames_and_bad_files_rejected() {
         let dir = temp_dir("fitsbad");
         let p = dir.join("f.fits");
-        write_array(&p, &[2, 2], &[1.0f64; 4]).unwrap();
-        let msg = FrameSource::open(&p).unwrap_err().to_string();
+        // Floating-point frames: whole counts are read, others named.
+        write_array(&p, &[2, 2], &[1.0f64, 2.0, 3.0, 4.5]).unwrap();
+        let mut source = FrameSource::open(&p).unwrap();
+        let msg = source.read_frame(0).unwrap_err().to_string();
         assert!(
-            msg.contains("f.fits") && msg.contains("BITPIX -64"),
+            msg.contains("f.fits") && msg.contains("value 4.5") && msg.contains("row 1, column 1"),
             "{msg}"
         );
-        assert!(msg.contains("expected an integer image"), "{msg}");
+        write_array(&p, &[2, 2], &[1.0f32, 2.0, 3.0, 4.0]).unwrap();
+        assert_eq!(read_frames(&p).unwrap().pixels, [1, 2, 3, 4]);
 
         write_array(&p, &[1, 2, 2, 2], &[1u16; 8]).unwrap();
         let msg = FrameSource::open(&p).unwrap_err().to_string();
         assert!(msg.contains("NAXIS = 4"), "{msg}");
 
+        // No data anywhere: the HDUs are listed.
         std::fs::write(
             &p,
             raw_fits(&[("SIMPLE", "T"), ("BITPIX", "16"), ("NAXIS", "0")], &[]),
         )
         .unwrap();
         let msg = read_array(&p).unwrap_err().to_string();
-        assert!(msg.contains("NAXIS = 0"), "{msg}");
-
-        std::fs::write(
-            &p,
-            raw_fits(&[("SIMPLE", "T"), ("BITPIX", "12"), ("NAXIS", "0")], &[]),
-        )
-        .unwrap();
-        let msg = read_array(&p).unwrap_err().to_string();
-        assert!(msg.contains("BITPIX = 12"), "{msg}");
+        assert!(
+            msg.contains("no image with data") && msg.contains("0: no data"),
+            "{msg}"
+        );
 
         std::fs::write(&p, b"\x93NUMPY not a fits file").unwrap();
         let msg = read_array(&p).unwrap_err().to_string();
-        assert!(msg.contains("not a FITS file"), "{msg}");
-
-        // header without END
-        let mut h = card("SIMPLE", "T", "");
-        while h.len() < BLOCK {
-            h.push(' ');
-        }
-        std::fs::write(&p, h).unwrap();
-        let msg = read_array(&p).unwrap_err().to_string();
-        assert!(msg.contains("before its END"), "{msg}");
+        assert!(msg.contains("not a readable FITS file"), "{msg}");
 
         // truncated data
         write_array(&p, &[100, 100], &[1.0f64; 10000]).unwrap();
         let bytes = std::fs::read(&p).unwrap();
         std::fs::write(&p, &bytes[..BLOCK * 3]).unwrap();
-        let msg = read_array(&p).unwrap_err().to_string();
-        assert!(msg.contains("truncated"), "{msg}");
+        assert!(read_array(&p).is_err());
     }
 
+    /// An image in an extension (the primary HDU empty, a table beside
+    /// it, as camera software and astropy write), a tile-compressed cube,
+    /// and `--hdu` by index and by name.
     #[test]
-    fn parses_card_values() {
-        assert_eq!(
-            parse_value("                   T / c"),
-            Value::Logical(true)
+    fn extension_and_tile_compressed_frames() {
+        use fitsio::images::{ImageDescription, ImageType};
+        let dir = temp_dir("fitsext");
+        let pixels: Vec<u16> = (0..2 * 3 * 4).map(|v| (v * 1000) as u16).collect();
+        let description = ImageDescription {
+            data_type: ImageType::UnsignedShort,
+            dimensions: &[2, 3, 4],
+        };
+        let ext = dir.join("ext.fits");
+        {
+            let mut f = fitsio::FitsFile::create(&ext).open().unwrap();
+            let hdu = f
+                .create_image(
+                    "DARK",
+                    &ImageDescription {
+                        data_type: ImageType::UnsignedShort,
+                        dimensions: &[3, 4],
+                    },
+                )
+                .unwrap();
+            hdu.write_image(&mut f, &[7u16; 12]).unwrap();
+            let hdu = f.create_image("SCI", &description).unwrap();
+            hdu.write_image(&mut f, &pixels).unwrap();
+        }
+        // The first image with data is DARK (one frame); SCI by name or index.
+        let dark = read_frames(&ext).unwrap();
+        assert_eq!((dark.shape.frames, dark.pixels[0]), (1, 7));
+        for hdu in ["SCI", "sci", "2"] {
+            let cube = FrameSource::open_hdu(&ext, Some(hdu))
+                .unwrap()
+                .read_all()
+                .unwrap();
+            assert_eq!(cube.shape.frames, 2);
+            assert_eq!((cube.shape.height, cube.shape.width), (3, 4));
+            assert_eq!(cube.pixels, pixels);
+        }
+        let msg = FrameSource::open_hdu(&ext, Some("FLAT"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            msg.contains("no HDU 'FLAT'") && msg.contains("2 'SCI': image (2, 3, 4)"),
+            "{msg}"
         );
-        assert_eq!(
-            parse_value("                32768 / x"),
-            Value::Integer(32768)
+
+        // Tile-compressed (Rice), written by cfitsio's extended file name.
+        let packed = dir.join("packed.fits");
+        {
+            let name = format!("{}[compress R]", packed.display());
+            let mut f = fitsio::FitsFile::create(&name).open().unwrap();
+            let hdu = f.create_image("SCI", &description).unwrap();
+            hdu.write_image(&mut f, &pixels).unwrap();
+        }
+        let raw = std::fs::read(&packed).unwrap();
+        let text = String::from_utf8_lossy(&raw);
+        assert!(
+            text.contains("ZIMAGE") && text.contains("RICE_1"),
+            "not tile-compressed"
         );
-        assert_eq!(parse_value("   3.2768E4"), Value::Real(32768.0));
-        assert_eq!(parse_value(" 1.5D-1"), Value::Real(0.15));
-        assert_eq!(
-            parse_value(" 'it''s / here'  / comment"),
-            Value::Other("it's / here".into())
-        );
+        let cube = read_frames(&packed).unwrap();
+        assert_eq!(cube.shape.frames, 2);
+        assert_eq!(cube.pixels, pixels);
     }
 
     #[test]

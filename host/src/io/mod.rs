@@ -1,5 +1,7 @@
-//! Camera frames and calibration maps on disk: NumPy `.npy` and FITS
-//! (primary-HDU image), chosen by file extension.
+//! Camera frames and calibration maps on disk: NumPy `.npy` and FITS (read
+//! by cfitsio: the primary HDU or an image extension, tile-compressed
+//! included), chosen by file extension; results (slopes, flux, validity,
+//! provenance) in [`results`].
 //!
 //! - Frames: [`FrameSource`] streams a cube of shape (frames, height, width)
 //!   one frame at a time (seeking in the file, never loading the whole cube
@@ -15,6 +17,7 @@
 //! `[frames, height, width]`.
 
 pub mod fits;
+mod fits_in;
 mod fits_out;
 pub mod npy;
 pub mod output;
@@ -44,7 +47,7 @@ pub enum IoError {
     },
     /// The extension is none of `.npy`, `.fits`, `.fit`, `.fts`.
     #[error(
-        "{}: unrecognised file type; expected a .npy (NumPy) or .fits/.fit/.fts (FITS) file",
+        "{}: unrecognised file type; expected a .npy (NumPy) or .fits/.fit/.fts/.fz (FITS) file",
         path.display()
     )]
     UnknownFormat { path: PathBuf },
@@ -124,7 +127,7 @@ impl IoError {
 pub enum FileFormat {
     /// NumPy `.npy`.
     Npy,
-    /// FITS `.fits`, `.fit`, `.fts`: the primary HDU's image.
+    /// FITS `.fits`, `.fit`, `.fts`, `.fz` (fpack): read by cfitsio.
     Fits,
 }
 
@@ -136,7 +139,7 @@ impl FileFormat {
             .map(str::to_ascii_lowercase);
         match ext.as_deref() {
             Some("npy") => Ok(FileFormat::Npy),
-            Some("fits" | "fit" | "fts") => Ok(FileFormat::Fits),
+            Some("fits" | "fit" | "fts" | "fz") => Ok(FileFormat::Fits),
             _ => Err(IoError::UnknownFormat {
                 path: path.to_path_buf(),
             }),
@@ -175,7 +178,7 @@ pub fn read_array(path: impl AsRef<Path>) -> Result<Array, IoError> {
     let path = path.as_ref();
     match FileFormat::from_path(path)? {
         FileFormat::Npy => npy::read_array(path),
-        FileFormat::Fits => fits::read_array(path),
+        FileFormat::Fits => fits_in::read_array(path),
     }
 }
 
@@ -316,12 +319,6 @@ pub(crate) enum Encoding {
     U8,
     /// Unsigned 16-bit.
     U16 { big_endian: bool },
-    /// FITS integer data (big-endian, signed): physical = raw + zero.
-    FitsInt {
-        bytes: usize,
-        zero: i64,
-        blank: Option<i64>,
-    },
 }
 
 impl Encoding {
@@ -329,7 +326,6 @@ impl Encoding {
         match self {
             Encoding::U8 => 1,
             Encoding::U16 { .. } => 2,
-            Encoding::FitsInt { bytes, .. } => *bytes,
         }
     }
 }
@@ -355,6 +351,9 @@ pub(crate) struct FrameLayout {
 pub struct FrameSource {
     path: PathBuf,
     file: File,
+    /// FITS frames, read by cfitsio (the other fields then serve `.npy`).
+    fits: Option<fits_in::FitsImage>,
+    values: Vec<f64>,
     layout: FrameLayout,
     camera: Option<Camera>,
     next: usize,
@@ -374,14 +373,39 @@ impl fmt::Debug for FrameSource {
 impl FrameSource {
     /// Opens a frame file and reads its header; no pixels are read yet.
     pub fn open(path: impl AsRef<Path>) -> Result<Self, IoError> {
+        Self::open_hdu(path, None)
+    }
+
+    /// [`FrameSource::open`]; in a FITS file, the frames of the HDU `hdu`
+    /// (an index, 0 the primary, or an `EXTNAME`) instead of the first HDU
+    /// holding an image. Tile-compressed images are read like any other.
+    pub fn open_hdu(path: impl AsRef<Path>, hdu: Option<&str>) -> Result<Self, IoError> {
         let path = path.as_ref();
         let format = FileFormat::from_path(path)?;
+        if hdu.is_some() && format != FileFormat::Fits {
+            return Err(IoError::unexpected(
+                path,
+                "--hdu for a file that is not FITS",
+                "a FITS file with --hdu",
+            ));
+        }
         let mut file = File::open(path).map_err(|e| IoError::io(path, e))?;
+        let mut fits = None;
         let layout = match format {
             FileFormat::Npy => npy::frame_layout(path, &mut file)?,
-            FileFormat::Fits => fits::frame_layout(path, &mut file)?,
+            FileFormat::Fits => {
+                let mut image = fits_in::open_image(path, hdu)?;
+                let layout = fits_frame_layout(path, &image)?;
+                // A truncated file fails here, before any work, not at its last frame.
+                let total = layout.shape.frames * layout.shape.pixels_per_frame();
+                if total > 0 {
+                    image.read(path, total - 1, 1, &mut Vec::new())?;
+                }
+                fits = Some(image);
+                layout
+            }
         };
-        if layout.preloaded.is_none() {
+        if layout.preloaded.is_none() && fits.is_none() {
             let needed = layout.data_offset
                 + (layout.shape.frames * layout.shape.pixels_per_frame()) as u64
                     * layout.encoding.bytes_per_pixel() as u64;
@@ -399,6 +423,8 @@ impl FrameSource {
         Ok(FrameSource {
             path: path.to_path_buf(),
             file,
+            fits,
+            values: Vec::new(),
             layout,
             camera: None,
             next: 0,
@@ -461,7 +487,29 @@ impl FrameSource {
         }
         let n = shape.pixels_per_frame();
         out.clear();
-        if let Some(all) = &self.layout.preloaded {
+        if let Some(fits) = &mut self.fits {
+            fits.read(&self.path, index * n, n, &mut self.values)?;
+            for (pixel, &v) in self.values.iter().enumerate() {
+                if v.is_nan() {
+                    return Err(pixel_error(
+                        &self.path,
+                        index,
+                        shape.width,
+                        pixel,
+                        PixelProblem::Blank,
+                    ));
+                }
+                if !(0.0..=65535.0).contains(&v) || v.fract() != 0.0 {
+                    let problem = if v.fract() != 0.0 {
+                        PixelProblem::NotInteger(v)
+                    } else {
+                        PixelProblem::Range(v.clamp(i64::MIN as f64, i64::MAX as f64) as i64)
+                    };
+                    return Err(pixel_error(&self.path, index, shape.width, pixel, problem));
+                }
+                out.push(v as u16);
+            }
+        } else if let Some(all) = &self.layout.preloaded {
             out.extend_from_slice(&all[index * n..(index + 1) * n]);
         } else {
             let bpp = self.layout.encoding.bytes_per_pixel();
@@ -591,6 +639,44 @@ pub fn check_frame(
 pub(crate) enum PixelProblem {
     Range(i64),
     Blank,
+    /// A scaled FITS value (`BSCALE`, `BZERO`) that is not a whole count.
+    NotInteger(f64),
+}
+
+/// The frame shape of a FITS image: integer data of 2 (one frame) or 3 axes.
+fn fits_frame_layout(path: &Path, image: &fits_in::FitsImage) -> Result<FrameLayout, IoError> {
+    let expected = "an image of NAXIS 2 (one frame) or 3 (NAXIS3 frames)";
+    let found = format!(
+        "{}: a {} image of shape {} (NAXIS = {})",
+        image.describe,
+        if image.integer {
+            "integer"
+        } else {
+            "floating-point"
+        },
+        shape_string(&image.shape),
+        image.shape.len()
+    );
+    // Floating-point images are read too: each value must be a whole count.
+    let shape = match image.shape[..] {
+        [height, width] => FrameShape {
+            frames: 1,
+            height,
+            width,
+        },
+        [frames, height, width] => FrameShape {
+            frames,
+            height,
+            width,
+        },
+        _ => return Err(IoError::unexpected(path, found, expected)),
+    };
+    Ok(FrameLayout {
+        shape,
+        data_offset: 0,
+        encoding: Encoding::U16 { big_endian: true },
+        preloaded: None,
+    })
 }
 
 fn pixel_error(
@@ -616,6 +702,12 @@ fn pixel_error(
             row,
             column,
         },
+        PixelProblem::NotInteger(value) => IoError::malformed(
+            path,
+            format!(
+                "frame {frame}, row {row}, column {column}: value {value} (after BSCALE and BZERO) is not a whole camera count"
+            ),
+        ),
     }
 }
 
@@ -638,33 +730,6 @@ pub(crate) fn decode(
                 .chunks_exact(2)
                 .map(|b| u16::from_be_bytes([b[0], b[1]])),
         ),
-        Encoding::FitsInt {
-            bytes: 2,
-            zero: 32768,
-            blank: None,
-        } => out.extend(
-            bytes
-                .chunks_exact(2)
-                .map(|b| u16::from_be_bytes([b[0], b[1]]) ^ 0x8000),
-        ),
-        Encoding::FitsInt {
-            bytes: size,
-            zero,
-            blank,
-        } => {
-            for (index, chunk) in bytes.chunks_exact(size).enumerate() {
-                let raw = fits::be_int(chunk);
-                if blank == Some(raw) {
-                    return Err((index, PixelProblem::Blank));
-                }
-                let value = raw as i128 + zero as i128;
-                if !(0..=u16::MAX as i128).contains(&value) {
-                    let clamped = value.clamp(i64::MIN as i128, i64::MAX as i128) as i64;
-                    return Err((index, PixelProblem::Range(clamped)));
-                }
-                out.push(value as u16);
-            }
-        }
     }
     Ok(())
 }
