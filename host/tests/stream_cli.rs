@@ -114,3 +114,72 @@ fn no_configure_checks_the_devices_configuration_digest() {
     drop(device);
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// `stream --out` writes flux, validity and provenance beside the slopes,
+/// in each format, equal to what `process` writes for the same frames.
+#[test]
+fn stream_out_has_flux_validity_and_provenance_in_every_format() {
+    let dir = scratch("out");
+    let config = config(&dir, 5);
+    let frames = frames(&dir, 8);
+    let device = InProcessDevice::start_pty().unwrap();
+    let (c, f) = (config.to_str().unwrap(), frames.to_str().unwrap());
+    let reference = dir.join("ref.npy");
+    let (ok, text) = run(&[
+        "process",
+        "--config",
+        c,
+        "--frames",
+        f,
+        "--out",
+        reference.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    let want_flux = brightpix::io::read_array(dir.join("ref.flux.npy")).unwrap();
+    for ext in ["npy", "fits", "csv"] {
+        let out = dir.join(format!("s.{ext}"));
+        let (ok, text) = run(&[
+            "stream",
+            "--port",
+            device.port(),
+            "--config",
+            c,
+            "--frames",
+            f,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(ok, "{ext}: {text}");
+        match ext {
+            "npy" => {
+                let flux = brightpix::io::read_array(dir.join("s.flux.npy")).unwrap();
+                assert_eq!(flux, want_flux);
+                let valid = brightpix::io::read_array(dir.join("s.valid.npy")).unwrap();
+                assert_eq!(valid.shape, [8, 4]);
+                let json = std::fs::read_to_string(dir.join("s.json")).unwrap();
+                assert!(
+                    json.contains("\"bpcfgid\"") && json.contains("stream"),
+                    "{json}"
+                );
+            }
+            "fits" => {
+                let mut file = fitsio::FitsFile::open(&out).unwrap();
+                let primary = file.primary_hdu().unwrap();
+                let rule: String = primary.read_key(&mut file, "BPRULE").unwrap();
+                assert_eq!(rule, "subtract-next");
+                let slopes: Vec<f64> = primary.read_image(&mut file).unwrap();
+                assert_eq!(slopes, brightpix::io::read_array(&reference).unwrap().data);
+                let hdu = file.hdu("FLUX").unwrap();
+                let flux: Vec<f64> = hdu.read_image(&mut file).unwrap();
+                assert_eq!(flux, want_flux.data);
+            }
+            _ => {
+                let text = std::fs::read_to_string(&out).unwrap();
+                let rows = text.lines().filter(|l| !l.starts_with('#')).count();
+                assert_eq!(rows, 1 + 8 * 4, "{text}");
+            }
+        }
+    }
+    drop(device);
+    let _ = std::fs::remove_dir_all(dir);
+}

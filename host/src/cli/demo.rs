@@ -15,7 +15,7 @@ use crate::sim_device::{InProcessDevice, QemuDevice, QemuOptions};
 #[derive(Args)]
 #[command(
     about = "Start a simulated device, configure it for the paper's CANARY model, stream simulated frames and verify every slope bit for bit",
-    after_help = "Examples:\n  cargo run --release -p brightpix -- demo\n  brightpix demo                  # the firmware's device loop in-process, over a pseudo-terminal\n  brightpix demo --qemu           # the real firmware ELF in qemu-system-arm (built if missing)\n  brightpix demo --frames 1000 --seed 7\n\n\
+    after_help = "Examples:\n  cargo run --release -p brightpix -- demo\n  brightpix demo                  # the firmware's device loop in-process, over a pseudo-terminal\n  brightpix demo --qemu           # the real firmware ELF in qemu-system-arm (built if missing)\n  brightpix demo --count 1000 --seed 7\n\n\
 The CANARY model is examples/canary.toml: 112x112 camera, 7x7 sub-apertures of 16x16 pixels,\n\
 subtract-next N = 20, 50-count background. Each frame tiles 49 independent spots of the\n\
 paper's NGS simulation (host/src/simulator). The device's results are compared with the\n\
@@ -25,8 +25,8 @@ pub struct DemoArgs {
     /// Run the real firmware ELF in qemu-system-arm instead of the firmware library in-process.
     #[arg(long)]
     qemu: bool,
-    /// Frames to stream.
-    #[arg(long, default_value_t = 200)]
+    /// Frames to simulate and stream (`--frames` names a file in every command).
+    #[arg(long = "count", value_name = "N", default_value_t = 200, value_parser = super::at_least_one)]
     frames: usize,
     /// Seed of the simulated turbulence and noise.
     #[arg(long, default_value_t = 1)]

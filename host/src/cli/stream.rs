@@ -7,7 +7,10 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 
 use crate::config_file::ProcessingConfig;
-use crate::io::{check_outputs, Appender, FrameSource, IoError};
+use crate::io::results::complete_streamed;
+use crate::io::{
+    check_result_outputs, Appender, FrameSource, IoError, Provenance, Raw, Results, ResultsFormat,
+};
 use crate::link::verify::Verifier;
 use crate::link::{Client, FrameOutcome, PixelSink};
 use crate::sil::verify_outcomes;
@@ -40,8 +43,9 @@ pub struct StreamArgs {
     /// Check every result against the reference implementation.
     #[arg(long)]
     verify: bool,
-    /// Write the slopes (.npy or FITS, float64, shape (frames, sub-apertures, 2), pixels; NaN where
-    /// dropped), frame by frame as they arrive: after Ctrl-C or a kill the file holds every frame received.
+    /// Write slopes, flux, validity and provenance (.npy set, FITS or CSV as `process`; NaN where
+    /// dropped). .npy and FITS slopes are written frame by frame as they arrive: after Ctrl-C or a
+    /// kill the file holds every frame received; flux, validity and provenance follow at the end.
     #[arg(long)]
     out: Option<PathBuf>,
     /// Send pixels through this FIFO instead of the link.
@@ -67,7 +71,7 @@ const BATCH: usize = 256;
 
 pub fn run(args: StreamArgs) -> Result<()> {
     if let Some(out) = &args.out {
-        check_outputs(&[&args.config, &args.frames], &[out])?;
+        check_result_outputs(&[&args.config, &args.frames], &[out])?;
     }
     if args.count == Some(0) {
         bail!("--count must be at least 1");
@@ -149,7 +153,11 @@ pub fn run(args: StreamArgs) -> Result<()> {
         first += count;
     }
     if let Some(out) = out {
-        let written = out.finish()?;
+        let mut provenance = Provenance::of("brightpix stream (device)", &view, Some(&args.config));
+        provenance.frames_source = Some(args.frames.display().to_string());
+        provenance.config_id = client.status().ok().and_then(|s| s.config_id);
+        let path = args.out.as_deref().unwrap_or(Path::new(""));
+        let written = out.finish(path, &provenance)?;
         eprintln!(
             "brightpix: {} holds the slopes of {written} frames ({} complete, {} dropped, {} incomplete; NaN where the device sent nothing)",
             args.out.as_deref().unwrap_or(Path::new("")).display(),
@@ -264,49 +272,79 @@ impl Tally {
     }
 }
 
-/// `--out`: one row of (sub-apertures, 2) slopes per frame, in frame
-/// order, written as each frame's outcome arrives.
+/// `--out`: one row per frame, in frame order, as each frame's outcome
+/// arrives: the slopes appended to the file at once (.npy, FITS), flux and
+/// validity kept for the end.
 struct SlopesFile {
-    file: Appender,
+    /// `None` for CSV, written whole at the end.
+    file: Option<Appender>,
+    results: Results,
     /// Outcomes that arrived ahead of an earlier frame's.
-    waiting: std::collections::BTreeMap<u32, Vec<f64>>,
+    waiting: std::collections::BTreeMap<u32, Vec<Option<Raw>>>,
     next: Option<u32>,
 }
 
 impl SlopesFile {
     fn create(path: &Path, subapertures: usize) -> Result<SlopesFile> {
+        let file = match ResultsFormat::from_path(path)? {
+            ResultsFormat::Csv => None,
+            _ => Some(Appender::create(path, &[subapertures, 2])?),
+        };
         Ok(SlopesFile {
-            file: Appender::create(path, &[subapertures, 2])?,
+            file,
+            results: Results::new(subapertures),
             waiting: Default::default(),
             next: None,
         })
     }
 
     fn push(&mut self, o: &FrameOutcome, subapertures: usize) -> Result<(), IoError> {
-        let mut row = Vec::with_capacity(subapertures * 2);
-        for e in o.slopes().by_index(subapertures) {
-            match e {
-                Some(e) => row.extend([e.slope_x as f64 / 65536.0, e.slope_y as f64 / 65536.0]),
-                None => row.extend([f64::NAN, f64::NAN]),
-            }
-        }
+        let row: Vec<Option<Raw>> = o
+            .slopes()
+            .by_index(subapertures)
+            .into_iter()
+            .map(|e| {
+                e.map(|e| Raw {
+                    slope_x: e.slope_x,
+                    slope_y: e.slope_y,
+                    flux: e.flux,
+                    valid: e.valid,
+                })
+            })
+            .collect();
         let next = *self.next.get_or_insert(o.frame());
         self.waiting.insert(o.frame(), row);
         let mut next = next;
         while let Some(row) = self.waiting.remove(&next) {
-            self.file.append(&row)?;
+            self.write(row)?;
             next = next.wrapping_add(1);
         }
         self.next = Some(next);
         Ok(())
     }
 
-    fn finish(mut self) -> Result<usize, IoError> {
+    fn write(&mut self, row: Vec<Option<Raw>>) -> Result<(), IoError> {
+        let before = self.results.slopes.len();
+        for raw in row {
+            self.results.push(raw);
+        }
+        match &mut self.file {
+            Some(file) => file.append(&self.results.slopes[before..]),
+            None => Ok(()),
+        }
+    }
+
+    /// Writes what remains; returns the frames the output holds.
+    fn finish(mut self, path: &Path, provenance: &Provenance) -> Result<usize, IoError> {
         // Frames whose predecessors never ended (cannot happen: every frame
         // sent gets an outcome), in order.
         for row in std::mem::take(&mut self.waiting).into_values() {
-            self.file.append(&row)?;
+            self.write(row)?;
         }
-        self.file.finish()
+        if let Some(file) = self.file {
+            file.finish()?;
+        }
+        complete_streamed(path, &self.results, provenance)?;
+        Ok(self.results.frames())
     }
 }

@@ -68,3 +68,50 @@ pub(crate) fn write_results(
     hdu.write_image(&mut file, &results.valid).map_err(e)?;
     Ok(())
 }
+
+/// `stream --out x.fits`: the slopes are the primary image, appended frame
+/// by frame; this adds the provenance keywords, `BUNIT`, and the `FLUX`
+/// and `VALID` extensions.
+pub(crate) fn add_to_streamed(
+    path: &Path,
+    keywords: &[(&str, Value, &str)],
+    results: &Results,
+) -> Result<(), IoError> {
+    let e = |err| fits_error(path, err);
+    let mut file = FitsFile::edit(path).map_err(e)?;
+    let primary = file.primary_hdu().map_err(e)?;
+    primary
+        .write_key(&mut file, "BUNIT", ("pixel", "unit of the slopes"))
+        .map_err(e)?;
+    for (key, value, comment) in keywords {
+        match value {
+            Value::Int(v) => primary.write_key(&mut file, key, (*v, *comment)),
+            Value::Text(t) => primary.write_key(&mut file, key, (t.as_str(), *comment)),
+        }
+        .map_err(e)?;
+    }
+    let shape = [results.frames(), results.subapertures];
+    let hdu = file
+        .create_image(
+            "FLUX",
+            &ImageDescription {
+                data_type: ImageType::Double,
+                dimensions: &shape,
+            },
+        )
+        .map_err(e)?;
+    hdu.write_key(&mut file, "BUNIT", ("count", "unit of the values"))
+        .map_err(e)?;
+    hdu.write_image(&mut file, &results.flux).map_err(e)?;
+    let hdu = file
+        .create_image(
+            "VALID",
+            &ImageDescription {
+                data_type: ImageType::UnsignedByte,
+                dimensions: &shape,
+            },
+        )
+        .map_err(e)?;
+    hdu.write_image(&mut file, &results.valid).map_err(e)?;
+    Ok(())
+}

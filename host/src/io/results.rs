@@ -425,6 +425,33 @@ pub fn stage_results(
     })
 }
 
+/// Completes the output of `stream --out`, whose slopes were appended
+/// frame by frame to `path` (a `.npy`, or the primary image of a FITS
+/// file) as they arrived: `.npy` gains the rest of its set (flux,
+/// validity, provenance); FITS gains the provenance keywords in its primary
+/// header and the `FLUX` and `VALID` extensions (cfitsio). A `.csv` is
+/// written whole here.
+pub fn complete_streamed(
+    path: &Path,
+    results: &Results,
+    provenance: &Provenance,
+) -> Result<(), IoError> {
+    let keywords = provenance.keywords(results, Layout::Pairs);
+    let (frames, s) = (results.frames(), results.subapertures);
+    match ResultsFormat::from_path(path)? {
+        ResultsFormat::Npy => {
+            let [_, flux_path, valid_path, json_path] = npy_set(path);
+            Staged::commit_all(vec![
+                Staged::write(&flux_path, |t| npy::write(t, &[frames, s], &results.flux))?,
+                Staged::write(&valid_path, |t| npy::write(t, &[frames, s], &results.valid))?,
+                Staged::write(&json_path, |t| write_json(t, &keywords))?,
+            ])
+        }
+        ResultsFormat::Fits => super::fits_out::add_to_streamed(path, &keywords, results),
+        ResultsFormat::Csv => write_results(path, results, provenance, Layout::Pairs).map(drop),
+    }
+}
+
 fn write_json(path: &Path, keywords: &[(&str, Value, &str)]) -> Result<(), IoError> {
     let mut map = serde_json::Map::new();
     for (k, v, _) in keywords {
