@@ -87,7 +87,7 @@ fn io_error(kind: io::ErrorKind, message: String) -> PyErr {
 pub fn link_error(e: LinkError) -> PyErr {
     let message = e.to_string();
     match &e {
-        LinkError::Open { source, .. } | LinkError::Fifo { source, .. } => {
+        LinkError::Open { error: source, .. } | LinkError::Fifo { source, .. } => {
             io_error(source.kind(), message)
         }
         LinkError::NoHello { .. } | LinkError::Timeout { .. } | LinkError::WriteStalled { .. } => {

@@ -107,6 +107,7 @@ pub fn run(args: StreamArgs) -> Result<()> {
         Some(path) => Some(SlopesFile::create(path, subapertures)?),
         None => None,
     };
+    let progress = super::progress::Progress::new(total as u64, "frames");
     let mut tally = Tally::default();
     let mut elapsed = std::time::Duration::ZERO;
     let mut first = 0;
@@ -126,6 +127,7 @@ pub fn run(args: StreamArgs) -> Result<()> {
                     write_error.get_or_insert(e);
                 }
             }
+            progress.inc(1);
             outcomes.push(o);
         });
         if let Some(e) = write_error {
@@ -152,6 +154,7 @@ pub fn run(args: StreamArgs) -> Result<()> {
         }
         first += count;
     }
+    progress.finish();
     if let Some(out) = out {
         let mut provenance = Provenance::of("brightpix stream (device)", &view, Some(&args.config));
         provenance.frames_source = Some(args.frames.display().to_string());

@@ -139,13 +139,16 @@ impl fmt::Display for DeviceInfo {
 /// Why a call failed.
 #[derive(Debug, thiserror::Error)]
 pub enum LinkError {
-    #[error("cannot open {port}: {source}")]
-    Open { port: String, source: io::Error },
+    /// Not a `source` field: the reason is in the message, and a chained
+    /// source would print it twice (`cannot open X: reason: reason`).
+    #[error("cannot open {port}: {error}")]
+    Open { port: String, error: io::Error },
     #[error("{0}")]
     Version(VersionMismatch),
     #[error(
-        "{port} does not answer like a brightpix device: no HelloReply within {waited:?} \
-         (is the device running, and is this its port?)"
+        "{port} does not answer like a brightpix device: no HelloReply within {:.1} s \
+         (is the device running, and is this its port?)",
+        .waited.as_secs_f64()
     )]
     NoHello { port: String, waited: Duration },
     #[error("the device refused {request}: {error} [DeviceError::{error:?}]")]
@@ -371,9 +374,9 @@ impl Client {
     }
 
     pub fn open_with(port_name: &str, options: ClientOptions) -> Result<Client, LinkError> {
-        let port = open_port(port_name).map_err(|source| LinkError::Open {
+        let port = open_port(port_name).map_err(|error| LinkError::Open {
             port: port_name.to_string(),
-            source,
+            error,
         })?;
         Self::connect_with(port, options)
     }

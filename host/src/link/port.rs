@@ -116,6 +116,14 @@ pub fn open_port(name: &str) -> io::Result<Box<dyn Port>> {
     if let Some(path) = name.strip_prefix("unix:") {
         return Ok(Box::new(UnixPort::connect(path)?));
     }
+    if !std::path::Path::new(name).exists() && !name.to_ascii_uppercase().starts_with("COM") {
+        // serialport's own text for this repeats itself ("No such file or
+        // directory: No such file or directory").
+        return Err(io::Error::new(
+            io::ErrorKind::NotFound,
+            "no such port (`brightpix devices` lists the serial ports)",
+        ));
+    }
     let port = serialport::new(name, 115_200)
         .timeout(Duration::from_millis(100))
         .open_native()
