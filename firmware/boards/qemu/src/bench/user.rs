@@ -15,7 +15,9 @@
 use brightpix_board_qemu::hostfs::HostFile;
 use brightpix_firmware::engine::{Engine, SubapertureResult};
 use brightpix_protocol::wire::tables::{read_reference_slope, read_window, TableSlices};
-use brightpix_protocol::wire::{decode, ConfigHeader, FrameReader, HostMessage, Received, Table};
+use brightpix_protocol::wire::{
+    decode, Background, ConfigHeader, FrameReader, HostMessage, Received, Table,
+};
 use brightpix_protocol::SubapertureWindow;
 use heapless::String;
 use semihosting::println;
@@ -163,6 +165,16 @@ pub fn run(
 ) {
     let tables = TABLES.take();
     let header = read_upload(&request.config, tables);
+    if let Background::Constant(value) = header.background {
+        // A uniform background travels as one value; the device fills its
+        // map with it (`device::Device`), and so must the benchmark.
+        match tables.background.get_mut(..header.camera.pixel_count()) {
+            Some(map) => map.fill(value),
+            None => {
+                fail("the configuration is larger than the benchmark's tables (65536 map pixels)")
+            }
+        }
+    }
     let slices = TableSlices {
         windows: &tables.windows,
         pixel_counts: &tables.counts,
