@@ -45,7 +45,12 @@ fn pixels_are_packed_first_in_the_low_bits() {
     );
     assert_eq!(out, [0x11, 0x22, 0x33, 0x44, 0x05, 0x06, 0x07, 0x08]);
     // Extended modes: one pixel per halfword, taken whole (not masked).
-    for width in [DataWidth::Bits10, DataWidth::Bits12, DataWidth::Bits14] {
+    for width in [
+        DataWidth::Bits10,
+        DataWidth::Bits12,
+        DataWidth::Bits14,
+        DataWidth::Bits16,
+    ] {
         let mut out = [0u16; 4];
         assert_eq!(unpack(width, &[0x0ABC_0123, 0xFFFF_0001], &mut out), 4);
         assert_eq!(out, [0x0123, 0x0ABC, 0x0001, 0xFFFF]);
@@ -61,8 +66,9 @@ fn pixels_are_packed_first_in_the_low_bits() {
         assert_eq!(unpack(width, &words, &mut back), 64);
         assert_eq!(back, pixels);
     }
-    assert_eq!(DataWidth::Bits8.edm(), 0);
-    assert_eq!(DataWidth::Bits14.edm(), 3);
+    assert_eq!(DataWidth::Bits8.edm(), Some(0));
+    assert_eq!(DataWidth::Bits14.edm(), Some(3));
+    assert_eq!(DataWidth::Bits16.edm(), None);
 }
 
 #[test]

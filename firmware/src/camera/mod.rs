@@ -87,6 +87,7 @@
 
 pub mod packing;
 pub mod ring;
+pub mod soft;
 mod source;
 
 pub use packing::DataWidth;
@@ -94,4 +95,5 @@ pub use ring::{
     DmaProgress, DmaRing, FrameMarks, Mark, CACHE_LINE_BYTES, CACHE_LINE_WORDS, MARK_SLOTS,
     RING_GRANULE_WORDS,
 };
+pub use soft::{SimulatedCamera, SoftCapture, SoftDma, SoftRing};
 pub use source::{CameraStats, DcmiSource};

@@ -10,7 +10,10 @@
 //! | 12-bit (`0b10`)      | 2               | `p0` bits 11:0, `p1` bits 27:16, others 0  |
 //! | 14-bit (`0b11`)      | 2               | `p0` bits 13:0, `p1` bits 29:16, others 0  |
 //!
-//! In the extended modes each pixel takes one 16-bit halfword. The halfword
+//! | 16-bit (no DCMI mode) | 2              | `p0` bits 15:0, `p1` bits 31:16            |
+//!
+//! The 16-bit bus is the simulated camera's (`soft`): the DCMI's widest
+//! mode is 14 bits. In the extended modes each pixel takes one 16-bit halfword. The halfword
 //! is taken whole: nothing is masked, so a bit that should be 0 and is not
 //! shows up as a value above the camera's bit depth, which the engine
 //! refuses (`PixelOutOfRange`), instead of being silently cut off.
@@ -23,6 +26,8 @@ pub enum DataWidth {
     Bits10,
     Bits12,
     Bits14,
+    /// A 16-bit bus: the simulated camera's (`super::soft`); not a DCMI mode.
+    Bits16,
 }
 
 impl DataWidth {
@@ -33,6 +38,7 @@ impl DataWidth {
             DataWidth::Bits10 => 10,
             DataWidth::Bits12 => 12,
             DataWidth::Bits14 => 14,
+            DataWidth::Bits16 => 16,
         }
     }
 
@@ -44,13 +50,15 @@ impl DataWidth {
         }
     }
 
-    /// The value of `DCMI_CR.EDM` for this width.
-    pub const fn edm(self) -> u8 {
+    /// The value of `DCMI_CR.EDM` for this width (`None`: the DCMI has no
+    /// 16-bit mode).
+    pub const fn edm(self) -> Option<u8> {
         match self {
-            DataWidth::Bits8 => 0b00,
-            DataWidth::Bits10 => 0b01,
-            DataWidth::Bits12 => 0b10,
-            DataWidth::Bits14 => 0b11,
+            DataWidth::Bits8 => Some(0b00),
+            DataWidth::Bits10 => Some(0b01),
+            DataWidth::Bits12 => Some(0b10),
+            DataWidth::Bits14 => Some(0b11),
+            DataWidth::Bits16 => None,
         }
     }
 }

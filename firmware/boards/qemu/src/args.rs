@@ -6,6 +6,8 @@
 //! | argument | effect |
 //! |---|---|
 //! | `--pixels PATH` | pixels also come from `PATH` (a FIFO or file the host writes, `PixelRows` frames) |
+//! | `--camera DIR` | the simulated camera: frames from the host through `DIR` (`camera.rs`) |
+//! | `--camera-fps N` | its frame rate (default 10) |
 //! | `--digest PATH` | board check: read `PATH` and log its length and FNV-1a hash |
 //! | `selftest=echo` | board check: UART0 echo loop instead of the device (0x04 exits) |
 //! | `selftest=panic`, `selftest=udf` | board check: the panic / HardFault exits (101 / 102) |
@@ -21,6 +23,8 @@ const CMDLINE_BYTES: usize = 1024;
 #[derive(Default)]
 pub struct Options {
     pub pixels: Option<String<MAX_PATH>>,
+    pub camera: Option<String<MAX_PATH>>,
+    pub camera_fps: Option<u32>,
     pub digest: Option<String<MAX_PATH>>,
     pub selftest: Option<Selftest>,
 }
@@ -47,7 +51,17 @@ impl Options {
                 continue;
             };
             match arg {
-                "--pixels" | "--digest" => {
+                "--camera-fps" => {
+                    let fps = match args.next() {
+                        Some(Ok(n)) => n.parse::<u32>().ok().filter(|&n| n > 0),
+                        _ => None,
+                    };
+                    if fps.is_none() {
+                        defmt::warn!("args: --camera-fps needs a whole number of frames per second, at least 1");
+                    }
+                    options.camera_fps = fps;
+                }
+                "--pixels" | "--digest" | "--camera" => {
                     let path = match args.next() {
                         Some(Ok(p)) => String::try_from(p).ok(),
                         _ => None,
@@ -55,10 +69,10 @@ impl Options {
                     if path.is_none() {
                         defmt::warn!("args: {=str} needs a path (UTF-8, at most 255 bytes)", arg);
                     }
-                    if arg == "--pixels" {
-                        options.pixels = path;
-                    } else {
-                        options.digest = path;
+                    match arg {
+                        "--pixels" => options.pixels = path,
+                        "--camera" => options.camera = path,
+                        _ => options.digest = path,
                     }
                 }
                 "selftest=echo" => options.selftest = Some(Selftest::Echo),

@@ -9,6 +9,8 @@
 //! - [`uart`]: CMSDK UART0 as an async byte transport (the host link);
 //! - [`hostfs`], [`pixels`]: host files through semihosting, and the pixel
 //!   source that reads `PixelRows` frames from one;
+//! - [`camera`]: the simulated camera, frames from the host in the camera
+//!   ring at the board's frame rate;
 //! - [`args`]: the semihosting command line;
 //! - [`storage`]: the device's buffers, sized for the board's 4 MiB of RAM;
 //! - [`timer`]: the CMSDK timer0, a 32-bit tick counter (benchmarks);
@@ -16,6 +18,7 @@
 #![no_std]
 
 pub mod args;
+pub mod camera;
 pub mod fault;
 pub mod hostfs;
 mod interrupts;

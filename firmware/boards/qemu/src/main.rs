@@ -6,7 +6,9 @@
 //! (`shared/PROTOCOL.md`). Pixels arrive as `PixelRows` messages on UART0,
 //! or, with `--pixels PATH` on the semihosting command line, also as
 //! `PixelRows` frames in the host file or FIFO `PATH` (see `pixels.rs` for
-//! how the semihosting reads share the CPU with the UART). defmt goes to
+//! how the semihosting reads share the CPU with the UART), or, with
+//! `--camera DIR`, from the simulated camera (`camera.rs`: frames the host
+//! generates, in the camera ring at the board's frame rate). defmt goes to
 //! semihosting (QEMU's stdout). The contract with the host is in
 //! firmware/README.md, "Running the QEMU device"; the command line in
 //! `args.rs`.
@@ -18,7 +20,7 @@ use brightpix_board_qemu::args::{Options, Selftest};
 use brightpix_board_qemu::hostfs::{self, HostFile};
 use brightpix_board_qemu::pixels::{BoardSource, HostPixels};
 use brightpix_board_qemu::uart::{self, Uart0};
-use brightpix_board_qemu::{board_name, exit, exit_code, storage, time_driver};
+use brightpix_board_qemu::{board_name, camera, exit, exit_code, storage, time_driver};
 use brightpix_firmware::device::{Device, LinkOnly, PixelRowsStream};
 use cortex_m_rt::entry;
 use embassy_executor::Spawner;
@@ -52,9 +54,17 @@ fn main() -> ! {
         None => {}
     }
 
-    let source = match &options.pixels {
-        None => BoardSource::Link(LinkOnly),
-        Some(path) => {
+    /// Frames per second of the simulated camera without `--camera-fps`.
+    const CAMERA_FPS: u32 = 10;
+    let source = match (&options.camera, &options.pixels) {
+        (Some(_), _) => {
+            if options.pixels.is_some() {
+                defmt::warn!("pixels: --camera given: --pixels ignored");
+            }
+            BoardSource::Camera(camera::source())
+        }
+        (None, None) => BoardSource::Link(LinkOnly),
+        (None, Some(path)) => {
             // For a FIFO, the open returns once the host has opened it for writing.
             defmt::info!("pixels: opening {=str}", path.as_str());
             match HostFile::open_str(path) {
@@ -91,7 +101,15 @@ fn main() -> ! {
         storage::TOTAL_BYTES,
         defmt::Debug2Format(&c.pixel_source)
     );
-    executor::run(|spawner: Spawner| spawner.spawn(serve(device).unwrap()))
+    let camera = options
+        .camera
+        .map(|dir| (dir, options.camera_fps.unwrap_or(CAMERA_FPS)));
+    executor::run(|spawner: Spawner| {
+        spawner.spawn(serve(device).unwrap());
+        if let Some((dir, fps)) = camera {
+            spawner.spawn(camera::feed(dir, fps).unwrap());
+        }
+    })
 }
 
 /// Runs the device for ever. UART0 cannot fail or close, so `run` returns

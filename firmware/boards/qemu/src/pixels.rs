@@ -1,7 +1,8 @@
 //! The QEMU board's pixel sources: none ([`LinkOnly`], pixels come in
-//! `PixelRows` messages on UART0), or `PixelRows` frames read from a host
+//! `PixelRows` messages on UART0), `PixelRows` frames read from a host
 //! file or FIFO through semihosting ([`PixelRowsStream`] over
-//! [`HostPixels`]), about 40x faster than the emulated UART.
+//! [`HostPixels`]), about 40x faster than the emulated UART, or the
+//! simulated camera ([`crate::camera`]).
 //!
 //! A semihosting read is synchronous: the whole emulated CPU (and QEMU's
 //! device emulation) waits in it, so UART0 cannot receive or send
@@ -20,11 +21,14 @@
 //! not help there; larger ones save semihosting calls (one read of 4 KiB
 //! carries about four `PixelRows` messages).
 
-use brightpix_firmware::device::{LinkOnly, PixelRowsStream, PixelRun, PixelSource};
+use brightpix_firmware::camera::SimulatedCamera;
+use brightpix_firmware::device::{CameraRefused, LinkOnly, PixelRowsStream, PixelRun, PixelSource};
 use brightpix_protocol::wire::PixelSourceKind;
+use brightpix_protocol::Camera;
 use embassy_time::Timer;
 use embedded_io_async::{ErrorKind, ErrorType, Read};
 
+use crate::camera::RING_WORDS;
 use crate::hostfs::HostFile;
 
 /// Most bytes one semihosting read asks for.
@@ -86,6 +90,7 @@ impl Read for HostPixels {
 pub enum BoardSource {
     Link(LinkOnly),
     Stream(PixelRowsStream<'static, HostPixels>),
+    Camera(SimulatedCamera<'static, 'static, RING_WORDS>),
 }
 
 impl PixelSource for BoardSource {
@@ -93,6 +98,23 @@ impl PixelSource for BoardSource {
         match self {
             BoardSource::Link(s) => s.kind(),
             BoardSource::Stream(s) => s.kind(),
+            BoardSource::Camera(s) => s.kind(),
+        }
+    }
+
+    fn start(&mut self, camera: Camera) -> Result<(), CameraRefused> {
+        match self {
+            BoardSource::Link(s) => s.start(camera),
+            BoardSource::Stream(s) => s.start(camera),
+            BoardSource::Camera(s) => s.start(camera),
+        }
+    }
+
+    fn stop(&mut self) {
+        match self {
+            BoardSource::Link(s) => s.stop(),
+            BoardSource::Stream(s) => s.stop(),
+            BoardSource::Camera(s) => s.stop(),
         }
     }
 
@@ -100,6 +122,7 @@ impl PixelSource for BoardSource {
         match self {
             BoardSource::Link(s) => s.next().await,
             BoardSource::Stream(s) => s.next().await,
+            BoardSource::Camera(s) => s.next().await,
         }
     }
 }

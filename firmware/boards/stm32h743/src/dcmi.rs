@@ -266,7 +266,8 @@ impl DcmiRing {
     /// Takes the DCMI and DMA1 stream 0 and sets up both (stopped); the
     /// DCMI samples `width` bits per pixel. `ring` must be in AXI SRAM,
     /// 32-byte aligned, a multiple of 16 words and at most 65 535 words;
-    /// the DMA owns it from now on.
+    /// the DMA owns it from now on. `width` must be a DCMI mode (8 to 14
+    /// bits).
     pub fn new(
         dcmi: Peri<'static, DCMI>,
         dma: Peri<'static, DMA1_CH0>,
@@ -274,6 +275,7 @@ impl DcmiRing {
         ring: &'static mut [u32],
         width: DataWidth,
     ) -> Self {
+        assert!(width.edm().is_some(), "the DCMI has no 16-bit mode");
         let len = ring.len();
         let ring = ring.as_mut_ptr();
         assert!((ring as usize).is_multiple_of(CACHE_LINE_BYTES));
@@ -380,7 +382,7 @@ impl DmaRing for DcmiRing {
             w.set_hspol(false); // HSYNC low = blanking
             w.set_vspol(false); // VSYNC low = blanking
             w.set_fcrc(0); // every frame
-            w.set_edm(self.width.edm());
+            w.set_edm(self.width.edm().unwrap_or(0)); // checked in `new`
         });
         dcmi.icr().write(|w| {
             w.set_frame_isc(true);

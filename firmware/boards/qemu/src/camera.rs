@@ -1,0 +1,210 @@
+//! The simulated camera (`--camera DIR`): the board's DMA, played by a task
+//! that reads frames the host generates through semihosting and writes them
+//! into the camera ring ([`SoftRing`]) at the pace of the board's own frame
+//! clock. The device reads them through `SimulatedCamera`, i.e. the same
+//! `DcmiSource` the STM32H743's DCMI feeds.
+//!
+//! The exchange with the host, in directory `DIR` (firmware/README.md,
+//! "The simulated camera"):
+//! 1. when a capture starts, the task appends one line to `DIR/requests`:
+//!    `capture ID WIDTH HEIGHT BIT_DEPTH` (ID counts captures from 1);
+//! 2. the host creates the FIFO `DIR/camera-ID.fifo` and writes frames of
+//!    that geometry into it, pixels as 16-bit little-endian, row after row
+//!    (a frame is `WIDTH * HEIGHT * 2` bytes), frame 0 first, for as long
+//!    as the board reads;
+//! 3. every frame period (`--camera-fps`) the task reads one frame, 4 KiB
+//!    at a time, into the ring (yielding to the device between pieces) and
+//!    marks its end; when the capture stops it closes the FIFO, and the
+//!    host stops writing.
+//!
+//! A new FIFO per capture means no byte of an earlier capture can reach a
+//! later one. The frame clock does not wait for the device: a device that
+//! falls a ring behind loses frames (counted overruns), as behind a camera.
+//! A semihosting read blocks the whole emulated machine while the FIFO is
+//! empty, so the host generates frames ahead.
+
+use core::fmt::Write as _;
+
+use brightpix_firmware::camera::{DataWidth, SimulatedCamera, SoftRing};
+use embassy_time::{Duration, Instant, Timer};
+use heapless::String;
+use semihosting::fs::OpenOptions;
+use semihosting::io::Write as _;
+use static_cell::ConstStaticCell;
+
+use crate::hostfs::{HostFile, MAX_PATH};
+use crate::pixels::READ_CHUNK;
+
+/// Words in the camera ring: 64 KiB, two and a half frames of 112x112.
+pub const RING_WORDS: usize = 16 * 1024;
+/// Words (two pixels each) of one run the source hands the device.
+pub const RUN_WORDS: usize = 1024;
+
+/// The ring. Its frame-end marks are not all zero, so it sits in `.data`.
+pub static RING: SoftRing<RING_WORDS> = SoftRing::new();
+static RUN_WORDS_BUF: ConstStaticCell<[u32; RUN_WORDS]> = ConstStaticCell::new([0; RUN_WORDS]);
+static RUN_PIXELS: ConstStaticCell<[u16; 2 * RUN_WORDS]> = ConstStaticCell::new([0; 2 * RUN_WORDS]);
+
+/// The device's pixel source over [`RING`]. Panics if called twice.
+pub fn source() -> SimulatedCamera<'static, 'static, RING_WORDS> {
+    SimulatedCamera::new(
+        &RING,
+        DataWidth::Bits16,
+        RUN_WORDS_BUF.take(),
+        RUN_PIXELS.take(),
+    )
+}
+
+/// How long the task waits for the host's FIFO of a capture.
+const FIFO_WAIT_MS: u64 = 10_000;
+/// How often it looks for a new capture.
+const IDLE_POLL_MS: u64 = 1;
+
+/// Feeds [`RING`] from the host's frames in `dir`, `fps` frames a second.
+#[embassy_executor::task]
+pub async fn feed(dir: String<MAX_PATH>, fps: u32) {
+    let period = Duration::from_micros(1_000_000 / u64::from(fps.max(1)));
+    let mut bytes = [0u8; READ_CHUNK];
+    let mut words = [0u32; READ_CHUNK / 4];
+    let mut last = 0;
+    defmt::info!(
+        "camera: simulated, frames from the host in {=str}, {=u32} frames/s",
+        dir.as_str(),
+        fps
+    );
+    loop {
+        let capture = loop {
+            match RING.capture() {
+                Some(c) if c.id != last => break c,
+                _ => Timer::after_millis(IDLE_POLL_MS).await,
+            }
+        };
+        last = capture.id;
+        let camera = capture.camera;
+        let frame_bytes = camera.pixel_count() * 2;
+        if !request(&dir, capture.id, camera) {
+            continue;
+        }
+        let Some(mut file) = open_fifo(&dir, capture.id).await else {
+            continue;
+        };
+        defmt::info!(
+            "camera: capture {=u32}: {=u16}x{=u16}, {=u8} bits",
+            capture.id,
+            camera.width,
+            camera.height,
+            camera.bit_depth
+        );
+        let mut next = Instant::now();
+        let mut frames = 0u32;
+        'frames: loop {
+            let mut left = frame_bytes;
+            while left > 0 {
+                let n = left.min(READ_CHUNK);
+                if let Err(e) = file.read_exact(&mut bytes[..n]) {
+                    defmt::error!(
+                        "camera: reading the host's frames failed ({}); capture {=u32} gets no more",
+                        defmt::Debug2Format(&e),
+                        capture.id
+                    );
+                    break 'frames;
+                }
+                for (w, b) in words.iter_mut().zip(bytes[..n].chunks_exact(4)) {
+                    *w = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+                }
+                if !RING.write(capture.id, &words[..n / 4]) {
+                    break 'frames;
+                }
+                left -= n;
+                // The device takes the piece before the next one comes.
+                embassy_futures::yield_now().await;
+            }
+            if !RING.end_frame(capture.id) {
+                break;
+            }
+            frames += 1;
+            // The frame clock: one period after the last frame's start; a
+            // late one does not catch up.
+            next += period;
+            let now = Instant::now();
+            if next < now {
+                next = now;
+            }
+            Timer::at(next).await;
+            if !RING.is_running(capture.id) {
+                break;
+            }
+        }
+        defmt::info!(
+            "camera: capture {=u32} ended after {=u32} frames",
+            capture.id,
+            frames
+        );
+        // Dropping `file` closes the FIFO: the host stops writing.
+    }
+}
+
+/// Appends the request line of capture `id` to `DIR/requests`.
+fn request(dir: &str, id: u32, camera: brightpix_protocol::Camera) -> bool {
+    let mut path: String<{ MAX_PATH + 1 }> = String::new();
+    let mut line: String<64> = String::new();
+    let ok = write!(path, "{dir}/requests\0").is_ok()
+        && writeln!(
+            line,
+            "capture {id} {} {} {}",
+            camera.width, camera.height, camera.bit_depth
+        )
+        .is_ok();
+    let Ok(cpath) = core::ffi::CStr::from_bytes_until_nul(path.as_bytes()) else {
+        return false;
+    };
+    if !ok {
+        defmt::error!("camera: the request path is too long");
+        return false;
+    }
+    let written = OpenOptions::new()
+        .append(true)
+        .create(true)
+        .open(cpath)
+        .and_then(|mut f| f.write_all(line.as_bytes()));
+    if let Err(e) = written {
+        defmt::error!(
+            "camera: cannot write {=str}/requests ({})",
+            dir,
+            defmt::Debug2Format(&e)
+        );
+        return false;
+    }
+    true
+}
+
+/// Opens `DIR/camera-ID.fifo` once the host has made it (the open returns
+/// when the host opens it for writing), while capture `id` runs.
+async fn open_fifo(dir: &str, id: u32) -> Option<HostFile> {
+    let mut path: String<MAX_PATH> = String::new();
+    if write!(path, "{dir}/camera-{id}.fifo").is_err() {
+        defmt::error!("camera: the FIFO path is too long");
+        return None;
+    }
+    let started = Instant::now();
+    loop {
+        if !RING.is_running(id) {
+            return None;
+        }
+        match HostFile::open_str(&path) {
+            Ok(file) => return Some(file),
+            Err(_) if started.elapsed() < Duration::from_millis(FIFO_WAIT_MS) => {
+                Timer::after_millis(IDLE_POLL_MS).await
+            }
+            Err(e) => {
+                defmt::error!(
+                    "camera: the host made no {=str} ({}); capture {=u32} gets no frames",
+                    path.as_str(),
+                    defmt::Debug2Format(&e),
+                    id
+                );
+                return None;
+            }
+        }
+    }
+}
