@@ -1,53 +1,80 @@
-//! `brightpix capture`: record slopes from a device with its own camera.
+//! `brightpix capture`: record slopes from a device with its own camera,
+//! and, for a simulated device's camera, verify every one bit for bit.
 
 use std::path::PathBuf;
+use std::time::Instant;
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
+use brightpix_protocol::wire::DeviceError;
 use clap::Args;
 
 use crate::config_file::ProcessingConfig;
 use crate::io::{check_result_outputs, write_results, Layout, Provenance, Raw, Results};
-use crate::link::{Client, FrameOutcome};
+use crate::link::verify::Verifier;
+use crate::link::{Client, FrameOutcome, LinkError};
+use crate::sil::verify_outcomes;
+use crate::sim_device::CameraFrames;
 
 #[derive(Args)]
 #[command(
-    about = "Record the slopes, flux and validity of N frames from a device with its own camera (.npy, FITS or CSV)",
-    after_help = "Examples:\n  brightpix capture --port /dev/ttyACM0 --count 1000 --out slopes.npy\n  brightpix capture --port /dev/ttyACM0 --config examples/canary.toml --count 100 --out s.npy\n\n\
+    about = "Record the slopes, flux and validity of N frames from a device with its own camera (.npy, FITS or CSV); with --verify, check a simulated camera's frames bit for bit",
+    after_help = "Examples:\n  brightpix capture --port /dev/ttyACM0 --count 1000 --out slopes.npy\n  brightpix capture --port /dev/ttyACM0 --config examples/canary.toml --count 100 --out s.fits --layout vector\n\n\
+  # a simulated device with its own camera, no hardware:\n  brightpix simulate-device --camera sim:7 &        # prints /dev/pts/N\n  brightpix capture --port /dev/pts/N --config examples/canary.toml --count 200 --verify --seed 7 --out s.npy\n\n\
 Written as by `brightpix process` (docs/OUTPUTS.md): slopes float64 pixels, flux counts,\n\
-validity 0/1, provenance (the device's configuration id and digest); NaN where a frame was dropped. Devices whose camera the host emulates\n\
-(simulate-device) answer NoCamera: use `brightpix stream` for them."
+validity 0/1, provenance (the device's configuration id and digest); NaN where a frame was dropped.\n\
+--verify regenerates the frames of `simulate-device --camera sim:SEED` (each capture starts at its\n\
+frame 0) for --config's camera and compares every sub-aperture's slopes, flux and validity with the\n\
+reference implementation; the exit status is non-zero on any mismatch or dropped frame.\n\
+A device without a camera of its own (simulate-device without --camera) answers NoCamera: send it\n\
+frames with `brightpix stream` instead."
 )]
 pub struct CaptureArgs {
     /// Serial port of the device (/dev/ttyACM0, /dev/pts/N, COM3) or unix:PATH.
     #[arg(long)]
     port: String,
     /// Frames to record.
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
     count: u32,
     /// Output: .npy (with .flux.npy, .valid.npy, .json beside it), .fits or .csv.
-    #[arg(long)]
-    out: PathBuf,
+    #[arg(long, required_unless_present = "verify")]
+    out: Option<PathBuf>,
     /// Slopes layout: pairs (frames, sub-apertures, 2) or vector (frames, 2 x sub-apertures).
     #[arg(long, value_enum, default_value_t = Layout::Pairs)]
     layout: Layout,
     /// Upload this configuration first (otherwise the device's active one is used).
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Check every result against the reference on the frames of the simulated camera
+    /// (simulate-device --camera sim:SEED); needs --config.
+    #[arg(long, requires = "config")]
+    verify: bool,
+    /// Seed of the simulated camera, for --verify (as in --camera sim:SEED).
+    #[arg(long, default_value_t = 1, requires = "verify")]
+    seed: u64,
+    /// Mismatches to print with --verify.
+    #[arg(long, default_value_t = 10)]
+    show: usize,
 }
 
 pub fn run(args: CaptureArgs) -> Result<()> {
     let inputs: Vec<&std::path::Path> = args.config.as_deref().into_iter().collect();
-    check_result_outputs(&inputs, &[&args.out])?;
-    if args.count == 0 {
-        bail!("--count must be at least 1");
-    }
+    let outputs: Vec<&std::path::Path> = args.out.as_deref().into_iter().collect();
+    check_result_outputs(&inputs, &outputs)?;
+    let config = args
+        .config
+        .as_deref()
+        .map(ProcessingConfig::load)
+        .transpose()?;
+    let mut verifier = match &config {
+        Some(c) if args.verify => {
+            Some(Verifier::new(&c.view(), args.show).context("configuration")?)
+        }
+        _ => None,
+    };
     let mut client = Client::open(&args.port)?;
-    let mut subapertures = None;
     let mut provenance = None;
-    if let Some(path) = &args.config {
-        let config = ProcessingConfig::load(path)?;
+    if let (Some(path), Some(config)) = (&args.config, &config) {
         let done = client.configure(&config.view())?;
-        subapertures = Some(config.windows.len());
         let mut p = Provenance::of("brightpix capture (device)", &config.view(), Some(path));
         p.config_id = Some(done.config_id);
         provenance = Some(p);
@@ -59,26 +86,55 @@ pub fn run(args: CaptureArgs) -> Result<()> {
         p
     });
     provenance.frames_source = Some(format!("the camera of the device at {}", args.port));
-    let started = std::time::Instant::now();
-    let (outcomes, error) = match client.capture(args.count) {
+
+    let progress = super::progress::Progress::new(u64::from(args.count), "frames");
+    let started = Instant::now();
+    let mut first_arrival = None;
+    let mut last_arrival = started;
+    let captured = client.capture_with(args.count, &mut |o| {
+        let now = Instant::now();
+        first_arrival.get_or_insert(now);
+        last_arrival = now;
+        if matches!(o, FrameOutcome::Done(_)) {
+            progress.inc(1);
+        }
+    });
+    progress.finish();
+    let seconds = started.elapsed().as_secs_f64().max(1e-9);
+    let (outcomes, error) = match captured {
         Ok(o) => (o, None),
-        Err(i) if i.received.is_empty() => return Err(i.error.into()),
+        Err(i) if i.received.is_empty() => {
+            if let LinkError::Device {
+                error: DeviceError::NoCamera,
+                ..
+            } = &i.error
+            {
+                bail!(
+                    "the device at {} has no camera of its own, or its camera refused the configured one ({}): \
+                     start a simulated device with `brightpix simulate-device --camera sim`, or send frames with `brightpix stream`",
+                    args.port,
+                    i.error
+                );
+            }
+            return Err(i.error.into());
+        }
         Err(i) => (i.received, Some(i.error)),
     };
-    let n = subapertures.unwrap_or_else(|| {
-        outcomes
-            .iter()
-            .flat_map(|o| o.slopes().slopes.iter())
-            .map(|s| s.index as usize + 1)
-            .max()
-            .unwrap_or(0)
-    });
-    let seconds = started.elapsed().as_secs_f64().max(1e-9);
+    let n = config.as_ref().map_or_else(
+        || {
+            outcomes
+                .iter()
+                .flat_map(|o| o.slopes().slopes.iter())
+                .map(|s| s.index as usize + 1)
+                .max()
+                .unwrap_or(0)
+        },
+        |c| c.windows.len(),
+    );
     let mut results = Results::new(n);
     let mut dropped = 0;
     for o in &outcomes {
-        let complete = matches!(o, FrameOutcome::Done(_));
-        dropped += usize::from(!complete);
+        dropped += usize::from(!matches!(o, FrameOutcome::Done(_)));
         for s in o.slopes().by_index(n) {
             results.push(s.map(|s| Raw {
                 slope_x: s.slope_x,
@@ -88,16 +144,62 @@ pub fn run(args: CaptureArgs) -> Result<()> {
             }));
         }
     }
-    write_results(&args.out, &results, &provenance, args.layout)?;
+    if let Some(out) = &args.out {
+        write_results(out, &results, &provenance, args.layout)?;
+    }
+    let done = outcomes.len() - dropped;
+    // The steady rate: between the first frame's arrival and the last's.
+    let steady = match first_arrival {
+        Some(first) if done > 1 => {
+            let span = (last_arrival - first).as_secs_f64();
+            format!(
+                ", {:.1} frames/s after the first",
+                (outcomes.len() - 1) as f64 / span.max(1e-9)
+            )
+        }
+        _ => String::new(),
+    };
     eprintln!(
-        "brightpix: {} frames ({} dropped) x {n} sub-apertures in {seconds:.3} s ({:.1} frames/s) written to {}",
-        outcomes.len(),
-        dropped,
+        "brightpix: {done} frames captured ({dropped} dropped) x {n} sub-apertures in {seconds:.3} s: {:.2} frames/s{steady}{}",
         outcomes.len() as f64 / seconds,
-        args.out.display()
+        args.out
+            .as_ref()
+            .map(|p| format!("; written to {}", p.display()))
+            .unwrap_or_default()
     );
+    if let (Some(verifier), Some(config)) = (&mut verifier, &config) {
+        let last = outcomes
+            .iter()
+            .map(|o| o.frame())
+            .max()
+            .map_or(0, |f| f + 1);
+        let frames = CameraFrames::new(config.camera, args.seed).frames(0, last as usize);
+        verify_outcomes(verifier, &frames, 0, &outcomes);
+        super::stream::print_verification(verifier, args.count as usize);
+    }
     if let Some(e) = error {
-        bail!("the capture stopped early (the frames received were written): {e}");
+        bail!("the capture stopped early (the frames received were kept): {e}");
+    }
+    if let Some(verifier) = &verifier {
+        if verifier.mismatch_count > 0 {
+            bail!(
+                "the device's results differ from the reference on the simulated camera's frames (seed {0}): is the device's camera sim:{0}?",
+                args.seed
+            );
+        }
+        if verifier.frames_verified != u64::from(args.count) {
+            bail!(
+                "only {} of the {} frames requested were verified",
+                verifier.frames_verified,
+                args.count
+            );
+        }
+        if !verifier.all_match() {
+            bail!(
+                "the device dropped or lost {} frames: its camera ran faster than it kept up with (a lower --camera-fps on simulate-device helps)",
+                verifier.frames_failed
+            );
+        }
     }
     Ok(())
 }

@@ -63,8 +63,27 @@ pub(crate) fn at_least_one(text: &str) -> Result<usize, String> {
 
 /// Runs the command line; errors are printed with their causes.
 pub fn main() -> ExitCode {
-    let cli = Cli::parse();
-    let outcome = match cli.command {
+    match dispatch(Cli::parse().command) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(error) => {
+            eprintln!("brightpix: error: {error:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Runs one command line as `main` does (`args` begins with the program
+/// name) and returns its outcome: for tests of whole commands.
+pub fn run_from<I, T>(args: I) -> anyhow::Result<()>
+where
+    I: IntoIterator<Item = T>,
+    T: Into<std::ffi::OsString> + Clone,
+{
+    dispatch(Cli::try_parse_from(args)?.command)
+}
+
+fn dispatch(command: Command) -> anyhow::Result<()> {
+    match command {
         Command::Process(args) => process::run(args),
         Command::Bench(args) => bench::run(args),
         Command::Paper(args) => paper::run(args),
@@ -80,12 +99,5 @@ pub fn main() -> ExitCode {
         Command::Capture(args) => capture::run(args),
         Command::SimulateDevice(args) => simulate_device::run(args),
         Command::Soak(args) => soak::run(args),
-    };
-    match outcome {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(error) => {
-            eprintln!("brightpix: error: {error:#}");
-            ExitCode::FAILURE
-        }
     }
 }

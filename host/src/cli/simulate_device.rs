@@ -6,9 +6,10 @@ use std::time::Duration;
 use anyhow::{bail, Result};
 use clap::{Args, ValueEnum};
 
+use crate::sim_device::camera::{IN_PROCESS_FPS, QEMU_FPS};
 use crate::sim_device::{
-    catch_interrupts, interrupted, temp_dir, InProcessDevice, InProcessOptions, QemuCpu,
-    QemuDevice, QemuOptions, SimLinkKind,
+    catch_interrupts, interrupted, temp_dir, CameraOptions, CameraSpec, InProcessDevice,
+    InProcessOptions, QemuCpu, QemuDevice, QemuOptions, SimLinkKind,
 };
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -31,9 +32,15 @@ pub enum CpuArg {
 #[derive(Args)]
 #[command(
     about = "Run the firmware as a device on this machine and print its serial port, until Ctrl-C",
-    after_help = "Examples:\n  brightpix simulate-device                 # the firmware's device loop in-process, on /dev/pts/N\n  brightpix simulate-device --qemu          # the real firmware ELF in qemu-system-arm (mps2-an386)\n  brightpix simulate-device --qemu --pixels-fifo   # pixels also through a FIFO (much faster than QEMU's UART)\n  brightpix simulate-device --qemu --cpu m7 # the Cortex-M7 build in mps2-an500\n  brightpix simulate-device --link unix --socket /tmp/bp.sock\n\n\
+    after_help = "Examples:\n  brightpix simulate-device                 # the firmware's device loop in-process, on /dev/pts/N\n  brightpix simulate-device --qemu          # the real firmware ELF in qemu-system-arm (mps2-an386)\n  brightpix simulate-device --qemu --pixels-fifo   # pixels also through a FIFO (much faster than QEMU's UART)\n  brightpix simulate-device --qemu --cpu m7 # the Cortex-M7 build in mps2-an500\n  brightpix simulate-device --camera sim:7  # its own camera: simulated Shack-Hartmann frames, seed 7\n  brightpix simulate-device --qemu --camera sim --camera-fps 5\n  brightpix simulate-device --link unix --socket /tmp/bp.sock\n\n\
 The first line on stdout is the port (/dev/pts/N or unix:PATH). Then, in another terminal:\n  brightpix status --port /dev/pts/N\n  brightpix stream --port /dev/pts/N --config examples/canary.toml --frames f.npy --verify\n\
 or from Python: serial.Serial('/dev/pts/N', timeout=1) and the wire format of shared/PROTOCOL.md.\n\
+With --camera the device has a camera of its own (for `capture`): the paper's CANARY NGS spots,\n\
+16x16 pixels each, tiled over the configured camera, made on the host from SEED and written into\n\
+the firmware's camera ring at --camera-fps (the device's frame clock; a device that falls behind\n\
+drops frames). Each capture starts at frame 0, so `capture --verify --seed SEED` checks it:\n\
+  brightpix capture --port /dev/pts/N --config examples/canary.toml --count 100 --verify --seed 7\n\
+Without --camera, Capture is answered NoCamera (pixels come from the host: `stream`).\n\
 The in-process device has the QEMU board's limits (6400 sub-apertures, maps of 256x256 pixels).\n\
 --qemu needs qemu-system-arm; the ELF is built (cd firmware && cargo build --release\n\
 -p brightpix-board-qemu) if missing. Its defmt log is QEMU's stdout, kept in a file (decoded\n\
@@ -58,6 +65,14 @@ pub struct SimulateDeviceArgs {
     /// Firmware ELF for --qemu (default: firmware/target/thumbv7em-none-eabihf/release/brightpix-qemu).
     #[arg(long, value_name = "PATH")]
     elf: Option<PathBuf>,
+    /// Give the device its own simulated camera: sim or sim:SEED (seed of the turbulence and noise,
+    /// default 1).
+    #[arg(long, value_name = "sim[:SEED]", conflicts_with = "pixels_fifo")]
+    camera: Option<CameraSpec>,
+    /// Frame rate of --camera, frames per second (default 100 in-process, 10 under --qemu, whose
+    /// results leave on a ~20 KB/s UART).
+    #[arg(long, value_name = "HZ", requires = "camera", value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    camera_fps: Option<u32>,
     /// Keep QEMU's raw defmt log in this file.
     #[arg(long, value_name = "PATH")]
     log: Option<PathBuf>,
@@ -72,6 +87,18 @@ pub fn run(args: SimulateDeviceArgs) -> Result<()> {
         }
     };
     catch_interrupts();
+    let camera = args.camera.map(|spec| CameraOptions {
+        spec,
+        fps: args
+            .camera_fps
+            .unwrap_or(if args.qemu { QEMU_FPS } else { IN_PROCESS_FPS }),
+    });
+    let describe_camera = |camera: &CameraOptions| {
+        eprintln!(
+            "brightpix: camera: simulated ({}), {} frames/s; `capture --verify --seed {}` checks it",
+            camera.spec, camera.fps, camera.spec.seed
+        );
+    };
     let result = if args.qemu {
         let mut device = QemuDevice::launch(QemuOptions {
             elf: args.elf.clone(),
@@ -83,6 +110,7 @@ pub fn run(args: SimulateDeviceArgs) -> Result<()> {
                 CpuArg::M4 => QemuCpu::M4,
                 CpuArg::M7 => QemuCpu::M7,
             },
+            camera,
         })?;
         device.release_fifo_in_background(Duration::from_secs(3600));
         println!("{}", device.port());
@@ -98,6 +126,9 @@ pub fn run(args: SimulateDeviceArgs) -> Result<()> {
                 fifo.display(),
                 fifo.display()
             );
+        }
+        if let Some(camera) = &camera {
+            describe_camera(camera);
         }
         eprintln!(
             "brightpix: defmt log (raw): {}; Ctrl-C stops",
@@ -129,6 +160,7 @@ pub fn run(args: SimulateDeviceArgs) -> Result<()> {
         let device = InProcessDevice::start(InProcessOptions {
             link,
             pixels_fifo: fifo,
+            camera,
             ..InProcessOptions::default()
         })?;
         println!("{}", device.port());
@@ -142,6 +174,9 @@ pub fn run(args: SimulateDeviceArgs) -> Result<()> {
                 fifo.display(),
                 fifo.display()
             );
+        }
+        if let Some(camera) = &camera {
+            describe_camera(camera);
         }
         eprintln!("brightpix: Ctrl-C stops");
         while !interrupted() {

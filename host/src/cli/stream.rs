@@ -243,7 +243,7 @@ fn check_active_configuration(
     )
 }
 
-fn print_verification(verifier: &Verifier, requested: usize) {
+pub(super) fn print_verification(verifier: &Verifier, requested: usize) {
     println!(
         "verified {} of {requested} frames, {} sub-aperture results compared with the reference: {} mismatches, {} frames dropped, {} missing",
         verifier.frames_verified,

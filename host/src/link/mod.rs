@@ -968,6 +968,15 @@ impl Client {
         &mut self,
         frames: u32,
     ) -> Result<Vec<FrameOutcome>, Interrupted<Vec<FrameOutcome>>> {
+        self.capture_with(frames, &mut |_| {})
+    }
+
+    /// [`Client::capture`], calling `on_frame` with each frame as it arrives.
+    pub fn capture_with(
+        &mut self,
+        frames: u32,
+        on_frame: &mut dyn FnMut(&FrameOutcome),
+    ) -> Result<Vec<FrameOutcome>, Interrupted<Vec<FrameOutcome>>> {
         let mut received = Vec::new();
         if frames == 0 {
             return Err(Interrupted {
@@ -993,10 +1002,14 @@ impl Client {
                     Some(Err(()))
                 })?;
                 match next {
-                    Ok(o) => received.push(o),
+                    Ok(o) => {
+                        on_frame(&o);
+                        received.push(o);
+                    }
                     Err(()) => {
                         // Results of the last frame precede the stop.
                         while let Some(o) = self.finished.pop_front() {
+                            on_frame(&o);
                             received.push(o);
                         }
                         return Ok(());

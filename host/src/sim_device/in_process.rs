@@ -1,5 +1,6 @@
 //! [`InProcessDevice`]: the firmware library's device loop on threads of
-//! this process.
+//! this process, its pixels on the link, from a FIFO, or from its own
+//! simulated camera (`camera.rs`).
 
 use std::io::{self, Read as _};
 use std::os::unix::net::UnixListener;
@@ -9,14 +10,19 @@ use std::sync::{Arc, Mutex};
 use std::thread::{self, JoinHandle};
 use std::time::Duration;
 
+use brightpix_firmware::camera::{DataWidth, SimulatedCamera};
 use brightpix_firmware::device::{Device, LinkOnly, PixelRowsStream, PixelSource};
 use brightpix_protocol::wire::{MAX_FRAME_LEN, MAX_PIXEL_BYTES};
 use serialport::{SerialPort, TTYPort};
 
+use super::camera::{CameraOptions, CameraRing, InProcessCamera};
 use super::link::{
     block_on, read_fifo, serve_unix, Inbox, InboxReader, Outlet, PtyWriter, SimLink,
 };
 use super::{make_fifo, spawn, HeapDeviceStorage, SimSizes};
+
+/// Words (two pixels each) of one run the camera source hands the device.
+const CAMERA_RUN_WORDS: usize = 4096;
 
 /// How a simulated device is reached.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -35,6 +41,8 @@ pub struct InProcessOptions {
     pub link: SimLinkKind,
     /// Also read `PixelRows` frames from this FIFO (created if missing).
     pub pixels_fifo: Option<PathBuf>,
+    /// The device's own simulated camera (`capture`); not with `pixels_fifo`.
+    pub camera: Option<CameraOptions>,
     /// Reported in `HelloReply`.
     pub board: &'static str,
 }
@@ -45,6 +53,7 @@ impl Default for InProcessOptions {
             sizes: SimSizes::default(),
             link: SimLinkKind::Pty,
             pixels_fifo: None,
+            camera: None,
             board: "brightpix-sim (in-process)",
         }
     }
@@ -62,6 +71,7 @@ pub struct InProcessDevice {
     /// while no client is connected).
     _slave: Option<TTYPort>,
     socket: Option<PathBuf>,
+    camera: Option<InProcessCamera>,
 }
 
 impl InProcessDevice {
@@ -71,6 +81,12 @@ impl InProcessDevice {
     }
 
     pub fn start(options: InProcessOptions) -> io::Result<InProcessDevice> {
+        if options.camera.is_some() && options.pixels_fifo.is_some() {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                "a simulated device has either a camera or a pixel FIFO, not both",
+            ));
+        }
         let stop = Arc::new(AtomicBool::new(false));
         let link_inbox = Arc::new(Inbox::default());
         let outlet: Outlet = Arc::new(Mutex::new(None));
@@ -134,11 +150,23 @@ impl InProcessDevice {
             tx: outlet,
         };
         let (sizes, board) = (options.sizes, options.board);
+        let ring = options.camera.map(|_| Arc::new(CameraRing::new()));
+        let camera = match (&ring, options.camera) {
+            (Some(ring), Some(camera)) => Some(InProcessCamera::start(ring.clone(), camera)?),
+            _ => None,
+        };
         threads.push(spawn("brightpix-sim-device", move || {
             let mut storage = HeapDeviceStorage::new(sizes);
-            match fifo_inbox {
-                None => run_device(Device::new(link, LinkOnly, storage.buffers(), board)),
-                Some(inbox) => {
+            match (fifo_inbox, ring) {
+                (_, Some(ring)) => {
+                    let mut words = vec![0u32; CAMERA_RUN_WORDS];
+                    let mut pixels = vec![0u16; 2 * CAMERA_RUN_WORDS];
+                    let source =
+                        SimulatedCamera::new(&ring, DataWidth::Bits16, &mut words, &mut pixels);
+                    run_device(Device::new(link, source, storage.buffers(), board))
+                }
+                (None, None) => run_device(Device::new(link, LinkOnly, storage.buffers(), board)),
+                (Some(inbox), None) => {
                     let mut frame_buffer = vec![0u8; MAX_FRAME_LEN];
                     let mut pixels = vec![0u16; MAX_PIXEL_BYTES / 2];
                     let source =
@@ -155,6 +183,7 @@ impl InProcessDevice {
             threads,
             _slave: slave,
             socket,
+            camera,
         })
     }
 
@@ -173,7 +202,13 @@ impl InProcessDevice {
         self.shutdown();
     }
 
+    /// Whether the device has its own (simulated) camera.
+    pub fn has_camera(&self) -> bool {
+        self.camera.is_some()
+    }
+
     fn shutdown(&mut self) {
+        self.camera = None;
         self.stop.store(true, Ordering::Relaxed);
         for inbox in &self.inboxes {
             inbox.close();

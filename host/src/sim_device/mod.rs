@@ -11,8 +11,19 @@
 //!   (read by semihosting, much faster than the emulated UART).
 //!
 //! Both optionally read `PixelRows` frames from a FIFO as well
-//! ([`PixelSink::Fifo`](crate::link::PixelSink) on the client side).
+//! ([`PixelSink::Fifo`](crate::link::PixelSink) on the client side), or
+//! have a camera of their own ([`camera`]: simulated Shack-Hartmann frames
+//! in the firmware's camera ring, for `brightpix capture`).
+//!
+//! | file | what |
+//! |---|---|
+//! | `in_process.rs` | [`InProcessDevice`] and its options |
+//! | `qemu.rs` | [`QemuDevice`], and finding or building its ELF |
+//! | `camera.rs` | the simulated camera: its frames, the in-process camera thread, the QEMU board's frame server |
+//! | `link.rs` | the in-process device's transports (pty, Unix socket, pixel FIFO) and executor |
+//! | `storage.rs` | [`HeapDeviceStorage`]: a board's statics on the heap |
 
+pub mod camera;
 mod in_process;
 mod link;
 mod qemu;
@@ -25,6 +36,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::thread::{self, JoinHandle};
 
+pub use camera::{CameraFrames, CameraOptions, CameraSpec};
 pub use in_process::{InProcessDevice, InProcessOptions, SimLinkKind};
 pub use link::{block_on, Stopped};
 pub use qemu::{

@@ -1,5 +1,7 @@
 //! [`QemuDevice`]: the firmware ELF in `qemu-system-arm`, and how it is
-//! found or built ([`QemuCpu`], [`qemu_elf`]).
+//! found or built ([`QemuCpu`], [`qemu_elf`]). Its pixels come on UART0,
+//! from a FIFO the host writes (`--pixels`), or from its own simulated
+//! camera (`--camera`: `camera.rs` serves the frames).
 
 use std::fs::File;
 use std::io::{self, Read as _, Write as _};
@@ -11,6 +13,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context as _};
 
+use super::camera::{CameraOptions, QemuCameraHost};
 use super::{make_fifo, spawn, temp_dir, SimLinkKind};
 
 /// The firmware workspace (`firmware/` beside `host/`).
@@ -166,6 +169,8 @@ pub struct QemuOptions {
     pub qemu: Option<PathBuf>,
     /// The core and machine (the ELF must be built for it).
     pub cpu: QemuCpu,
+    /// The board's own simulated camera (`capture`); not with `pixels_fifo`.
+    pub camera: Option<CameraOptions>,
 }
 
 /// The firmware in `qemu-system-arm`. Stops (kills QEMU) when dropped, and
@@ -181,10 +186,14 @@ pub struct QemuDevice {
     cpu: QemuCpu,
     dir: PathBuf,
     stdout: Option<JoinHandle<()>>,
+    camera: Option<QemuCameraHost>,
 }
 
 impl QemuDevice {
     pub fn launch(options: QemuOptions) -> anyhow::Result<QemuDevice> {
+        if options.camera.is_some() && options.pixels_fifo {
+            bail!("a simulated device has either a camera or a pixel FIFO, not both");
+        }
         let elf = qemu_elf_for(options.elf.as_deref(), options.cpu)?;
         let dir = temp_dir("brightpix-qemu")?;
         let log = options.log.clone().unwrap_or_else(|| dir.join("defmt.log"));
@@ -225,12 +234,40 @@ impl QemuDevice {
         } else {
             None
         };
-        let mut semihosting = String::from("enable=on,target=native");
+        let mut board_args = Vec::new();
         if let Some(path) = &fifo {
-            semihosting.push_str(&format!(
-                ",arg=brightpix-qemu,arg=--pixels,arg={}",
-                path.display()
-            ));
+            board_args.extend(["--pixels".to_string(), path.display().to_string()]);
+        }
+        let camera = match options.camera {
+            Some(camera) => {
+                let host = QemuCameraHost::start(&dir.join("camera"), camera.spec)
+                    .context("starting the simulated camera's frame server")?;
+                board_args.extend([
+                    "--camera".to_string(),
+                    host.dir().display().to_string(),
+                    "--camera-fps".to_string(),
+                    camera.fps.max(1).to_string(),
+                ]);
+                Some(host)
+            }
+            None => None,
+        };
+        if board_args
+            .iter()
+            .any(|a| a.contains(|c: char| c.is_whitespace() || c == ','))
+        {
+            bail!(
+                "the temporary directory {} contains blanks or commas, which QEMU's semihosting command line cannot carry",
+                dir.display()
+            );
+        }
+        let mut semihosting = String::from("enable=on,target=native");
+        if !board_args.is_empty() {
+            semihosting.push_str(",arg=brightpix-qemu");
+            for a in &board_args {
+                semihosting.push_str(",arg=");
+                semihosting.push_str(a);
+            }
         }
         command
             .args(["-semihosting-config", &semihosting, "-kernel"])
@@ -287,6 +324,7 @@ impl QemuDevice {
             cpu: options.cpu,
             dir,
             stdout: Some(stdout_thread),
+            camera,
         };
         let started = Instant::now();
         device.port = match socket {
@@ -413,9 +451,15 @@ impl QemuDevice {
         self.shutdown();
     }
 
+    /// Whether the board has its own (simulated) camera.
+    pub fn has_camera(&self) -> bool {
+        self.camera.is_some()
+    }
+
     fn shutdown(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
+        self.camera = None;
         if let Some(t) = self.stdout.take() {
             let _ = t.join();
         }

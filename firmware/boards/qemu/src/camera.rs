@@ -163,6 +163,7 @@ fn request(dir: &str, id: u32, camera: brightpix_protocol::Camera) -> bool {
         return false;
     }
     let written = OpenOptions::new()
+        .write(true)
         .append(true)
         .create(true)
         .open(cpath)

@@ -1,0 +1,478 @@
+//! The simulated devices' own camera (`simulate-device --camera sim[:SEED]`):
+//! Shack-Hartmann frames from the project's simulator, made on the host side
+//! of the simulation and written into the firmware's camera ring
+//! (`brightpix_firmware::camera::SoftRing`), which the device reads through
+//! the same `DcmiSource` as the STM32H743's DCMI.
+//!
+//! - [`CameraFrames`]: frame `k` of seed `SEED` for a camera geometry: the
+//!   paper's CANARY NGS spots (16x16 pixels each) tiled from the top-left
+//!   corner as `brightpix demo` tiles them, the simulator's background
+//!   elsewhere, saturated at the camera's bit depth. Every capture starts
+//!   at frame 0, so `capture --verify` regenerates exactly what the device
+//!   saw from the seed and the configured camera.
+//! - [`InProcessCamera`]: for the in-process device, a thread that plays
+//!   camera and DMA: it writes each frame into the ring as a rolling
+//!   readout (a few rows at a time across the frame period) at its frame
+//!   rate, marking each frame's end, and never waits for the device.
+//! - [`QemuCameraHost`]: for the QEMU board, whose own task paces the
+//!   frames (`firmware/boards/qemu/src/camera.rs`): the host answers each
+//!   capture request the board appends to `DIR/requests` by writing that
+//!   capture's frames into the FIFO `DIR/camera-ID.fifo`, which the board
+//!   reads through semihosting.
+
+use std::fs::File;
+use std::io::{self, Read as _, Write as _};
+use std::os::unix::fs::OpenOptionsExt;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{mpsc, Arc};
+use std::thread::{self, JoinHandle};
+use std::time::{Duration, Instant};
+
+use brightpix_firmware::camera::SoftRing;
+use brightpix_protocol::Camera;
+
+use super::{make_fifo, spawn};
+use crate::simulator::{SimulationParams, Simulator};
+
+/// Words in the in-process device's camera ring (256 KiB: ten frames of
+/// 112x112).
+pub const RING_WORDS: usize = 64 * 1024;
+
+/// The in-process device's camera ring.
+pub type CameraRing = SoftRing<RING_WORDS>;
+
+/// Frames per second of the in-process device's camera by default.
+pub const IN_PROCESS_FPS: u32 = 100;
+/// Frames per second of the QEMU board's camera by default: its results
+/// leave on a UART of about 20 KB/s (~0.7 KB per CANARY frame).
+pub const QEMU_FPS: u32 = 10;
+
+/// `--camera sim[:SEED]`: the simulated camera and its seed (default 1).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CameraSpec {
+    pub seed: u64,
+}
+
+impl FromStr for CameraSpec {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        let expected = "expected sim or sim:SEED (SEED a whole number)";
+        match s.split_once(':') {
+            None if s == "sim" => Ok(CameraSpec { seed: 1 }),
+            Some(("sim", seed)) => seed
+                .parse()
+                .map(|seed| CameraSpec { seed })
+                .map_err(|_| format!("camera {s:?}: {expected}")),
+            _ => Err(format!("camera {s:?}: {expected}")),
+        }
+    }
+}
+
+impl std::fmt::Display for CameraSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "sim:{}", self.seed)
+    }
+}
+
+/// A simulated device's camera: what it shows and how fast.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CameraOptions {
+    pub spec: CameraSpec,
+    /// Frames per second (at least 1).
+    pub fps: u32,
+}
+
+/// The simulated camera's frames for one geometry and seed (see the module
+/// docs).
+pub struct CameraFrames {
+    sim: Simulator,
+    camera: Camera,
+    seed: u64,
+    columns: usize,
+    rows: usize,
+}
+
+impl CameraFrames {
+    pub fn new(camera: Camera, seed: u64) -> CameraFrames {
+        let sim =
+            Simulator::new(SimulationParams::canary()).expect("the paper's parameters are valid");
+        let size = sim.size();
+        CameraFrames {
+            columns: camera.width as usize / size,
+            rows: camera.height as usize / size,
+            sim,
+            camera,
+            seed,
+        }
+    }
+
+    pub fn camera(&self) -> Camera {
+        self.camera
+    }
+
+    /// Frames `first .. first + count`, row-major.
+    pub fn frames(&self, first: u64, count: usize) -> Vec<Vec<u16>> {
+        let (width, height) = (self.camera.width as usize, self.camera.height as usize);
+        let size = self.sim.size();
+        let max = u16::MAX >> (16 - u32::from(self.camera.bit_depth.clamp(1, 16)));
+        let background = (self.sim.calibration_background().round() as u16).min(max);
+        let per_frame = self.columns * self.rows;
+        if per_frame == 0 {
+            return vec![vec![background; width * height]; count];
+        }
+        let spots = self
+            .sim
+            .frames(self.seed, first * per_frame as u64, per_frame * count);
+        spots
+            .chunks(per_frame)
+            .map(|tiles| {
+                let mut frame = vec![background; width * height];
+                for (t, spot) in tiles.iter().enumerate() {
+                    let (x0, y0) = ((t % self.columns) * size, (t / self.columns) * size);
+                    for y in 0..size {
+                        let row = &mut frame[(y0 + y) * width + x0..][..size];
+                        for (p, &v) in row.iter_mut().zip(&spot.raw[y * size..(y + 1) * size]) {
+                            *p = v.min(max);
+                        }
+                    }
+                }
+                frame
+            })
+            .collect()
+    }
+}
+
+/// Frames generated ahead, in batches, on a thread of their own; the
+/// thread ends when the receiver is dropped.
+fn frames_ahead(camera: Camera, seed: u64, batch: usize) -> io::Result<mpsc::Receiver<Vec<u16>>> {
+    let (tx, rx) = mpsc::sync_channel(batch);
+    spawn("brightpix-camera-frames", move || {
+        let frames = CameraFrames::new(camera, seed);
+        let mut first = 0u64;
+        loop {
+            // The first frame alone, as soon as it can be.
+            let n = if first == 0 { 1 } else { batch };
+            for frame in frames.frames(first, n) {
+                if tx.send(frame).is_err() {
+                    return;
+                }
+            }
+            first += n as u64;
+        }
+    })?;
+    Ok(rx)
+}
+
+/// Frames generated per batch.
+const BATCH: usize = 4;
+
+/// Pixels as the 16-bit bus packs them: two per word, the first in the low
+/// half (`DataWidth::Bits16`).
+fn pack16(pixels: &[u16]) -> Vec<u32> {
+    pixels
+        .chunks(2)
+        .map(|p| u32::from(p[0]) | u32::from(*p.get(1).unwrap_or(&0)) << 16)
+        .collect()
+}
+
+// --- the in-process device's camera ---------------------------------------------------
+
+/// Pieces a frame is written in, spread over the frame period.
+const READOUT_PIECES: usize = 8;
+
+/// The thread that plays camera and DMA for an in-process device (see the
+/// module docs). Stops when dropped.
+pub struct InProcessCamera {
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl InProcessCamera {
+    pub fn start(ring: Arc<CameraRing>, options: CameraOptions) -> io::Result<InProcessCamera> {
+        let stop = Arc::new(AtomicBool::new(false));
+        let flag = stop.clone();
+        let thread = spawn("brightpix-sim-camera", move || {
+            run_in_process(&ring, options, &flag)
+        })?;
+        Ok(InProcessCamera {
+            stop,
+            thread: Some(thread),
+        })
+    }
+}
+
+impl Drop for InProcessCamera {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+fn run_in_process(ring: &CameraRing, options: CameraOptions, stop: &AtomicBool) {
+    let period = Duration::from_secs_f64(1.0 / f64::from(options.fps.max(1)));
+    let mut last = 0;
+    while !stop.load(Ordering::Relaxed) {
+        let capture = match ring.capture() {
+            Some(c) if c.id != last => c,
+            _ => {
+                thread::sleep(Duration::from_millis(1));
+                continue;
+            }
+        };
+        last = capture.id;
+        let Ok(frames) = frames_ahead(capture.camera, options.spec.seed, BATCH) else {
+            continue;
+        };
+        let mut start = Instant::now();
+        'frames: while !stop.load(Ordering::Relaxed) {
+            let Ok(frame) = frames.recv() else { break };
+            let words = pack16(&frame);
+            let piece = words.len().div_ceil(READOUT_PIECES).max(1);
+            for (i, part) in words.chunks(piece).enumerate() {
+                sleep_until(
+                    start + period.mul_f64(i as f64 / READOUT_PIECES as f64),
+                    stop,
+                );
+                if !ring.write(capture.id, part) {
+                    break 'frames;
+                }
+            }
+            if !ring.end_frame(capture.id) {
+                break;
+            }
+            // The next frame one period after this one began; a late one
+            // does not catch up.
+            start = (start + period).max(Instant::now());
+            sleep_until(start, stop);
+        }
+    }
+}
+
+fn sleep_until(at: Instant, stop: &AtomicBool) {
+    loop {
+        let now = Instant::now();
+        if now >= at || stop.load(Ordering::Relaxed) {
+            return;
+        }
+        thread::sleep((at - now).min(Duration::from_millis(50)));
+    }
+}
+
+// --- the QEMU board's camera --------------------------------------------------------------
+
+/// The host side of the QEMU board's simulated camera (see the module
+/// docs). Stops when dropped.
+pub struct QemuCameraHost {
+    dir: PathBuf,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl QemuCameraHost {
+    /// Serves captures in `dir` (created, with an empty `requests` file).
+    pub fn start(dir: &Path, spec: CameraSpec) -> io::Result<QemuCameraHost> {
+        std::fs::create_dir_all(dir)?;
+        File::create(dir.join("requests"))?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let (flag, path) = (stop.clone(), dir.to_path_buf());
+        let thread = spawn("brightpix-qemu-camera", move || {
+            serve_requests(&path, spec, &flag)
+        })?;
+        Ok(QemuCameraHost {
+            dir: dir.to_path_buf(),
+            stop,
+            thread: Some(thread),
+        })
+    }
+
+    /// The directory the board is given (`--camera DIR`).
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+}
+
+impl Drop for QemuCameraHost {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// A capture request: `capture ID WIDTH HEIGHT BIT_DEPTH`.
+fn parse_request(line: &str) -> Option<(u32, Camera)> {
+    let mut words = line.split_whitespace();
+    if words.next()? != "capture" {
+        return None;
+    }
+    let id = words.next()?.parse().ok()?;
+    let camera = Camera {
+        width: words.next()?.parse().ok()?,
+        height: words.next()?.parse().ok()?,
+        bit_depth: words.next()?.parse().ok()?,
+    };
+    words.next().is_none().then_some((id, camera))
+}
+
+fn serve_requests(dir: &Path, spec: CameraSpec, stop: &Arc<AtomicBool>) {
+    let Ok(mut requests) = File::open(dir.join("requests")) else {
+        return;
+    };
+    let mut pending = String::new();
+    let mut writers: Vec<(Arc<AtomicBool>, JoinHandle<()>)> = Vec::new();
+    while !stop.load(Ordering::Relaxed) {
+        let mut text = String::new();
+        if requests.read_to_string(&mut text).is_err() {
+            return;
+        }
+        pending.push_str(&text);
+        while let Some(end) = pending.find('\n') {
+            let line: String = pending.drain(..=end).collect();
+            let Some((id, camera)) = parse_request(&line) else {
+                eprintln!("brightpix: the QEMU camera ignored the request {line:?}");
+                continue;
+            };
+            // The board has moved on: earlier captures get no more frames.
+            for (done, _) in &writers {
+                done.store(true, Ordering::Relaxed);
+            }
+            let fifo = dir.join(format!("camera-{id}.fifo"));
+            if make_fifo(&fifo).is_err() {
+                continue;
+            }
+            let done = Arc::new(AtomicBool::new(false));
+            let (flag, all) = (done.clone(), stop.clone());
+            if let Ok(t) = spawn("brightpix-qemu-camera-frames", move || {
+                write_frames(&fifo, camera, spec.seed, &flag, &all);
+                let _ = std::fs::remove_file(&fifo);
+            }) {
+                writers.push((done, t));
+            }
+        }
+        writers.retain(|(_, t)| !t.is_finished());
+        thread::sleep(Duration::from_millis(2));
+    }
+    for (done, t) in writers {
+        done.store(true, Ordering::Relaxed);
+        let _ = t.join();
+    }
+}
+
+/// Writes the frames of one capture into `fifo` until the board closes it
+/// or `done`/`stop`.
+fn write_frames(fifo: &Path, camera: Camera, seed: u64, done: &AtomicBool, stop: &AtomicBool) {
+    let quit = || done.load(Ordering::Relaxed) || stop.load(Ordering::Relaxed);
+    // Non-blocking open: fails until the board has opened its end.
+    let started = Instant::now();
+    let mut file = loop {
+        match std::fs::OpenOptions::new()
+            .write(true)
+            .custom_flags(libc::O_NONBLOCK)
+            .open(fifo)
+        {
+            Ok(f) => break f,
+            Err(_) if quit() || started.elapsed() > Duration::from_secs(30) => return,
+            Err(_) => thread::sleep(Duration::from_millis(1)),
+        }
+    };
+    if set_blocking(&file).is_err() {
+        return;
+    }
+    let Ok(frames) = frames_ahead(camera, seed, BATCH) else {
+        return;
+    };
+    let mut bytes = Vec::new();
+    while !quit() {
+        let Ok(frame) = frames.recv() else { return };
+        bytes.clear();
+        bytes.extend(frame.iter().flat_map(|p| p.to_le_bytes()));
+        // Blocks while the FIFO is full; fails once the board closed it.
+        if file.write_all(&bytes).is_err() {
+            return;
+        }
+    }
+}
+
+fn set_blocking(file: &File) -> io::Result<()> {
+    use std::os::unix::io::AsRawFd;
+    let fd = file.as_raw_fd();
+    // SAFETY: fcntl on a file descriptor this function's caller owns.
+    let flags = unsafe { libc::fcntl(fd, libc::F_GETFL) };
+    if flags < 0 || unsafe { libc::fcntl(fd, libc::F_SETFL, flags & !libc::O_NONBLOCK) } < 0 {
+        return Err(io::Error::last_os_error());
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn camera_spec_parses_sim_and_a_seed() {
+        assert_eq!("sim".parse(), Ok(CameraSpec { seed: 1 }));
+        assert_eq!("sim:42".parse(), Ok(CameraSpec { seed: 42 }));
+        for bad in ["", "sim:", "sim:x", "dcmi", "sim:1:2"] {
+            let err = bad.parse::<CameraSpec>().unwrap_err();
+            assert!(err.contains("expected sim or sim:SEED"), "{bad}: {err}");
+        }
+    }
+
+    #[test]
+    fn frames_are_the_demo_tiling_from_any_first_frame() {
+        let camera = crate::sil::canary_config().camera;
+        let frames = CameraFrames::new(camera, 3);
+        let sim = Simulator::new(SimulationParams::canary()).unwrap();
+        let expected = crate::sil::tiled_frames(&sim, camera, 7, 7, 3, 3);
+        assert_eq!(frames.frames(0, 3), expected);
+        assert_eq!(frames.frames(2, 1)[0], expected[2]);
+    }
+
+    #[test]
+    fn frames_saturate_at_the_bit_depth_and_fill_small_cameras() {
+        let camera = Camera {
+            width: 40,
+            height: 20,
+            bit_depth: 6,
+        };
+        let frames = CameraFrames::new(camera, 1).frames(0, 2);
+        assert_eq!(frames.len(), 2);
+        assert!(frames.iter().all(|f| f.len() == 800));
+        assert!(frames.iter().flatten().all(|&p| p <= 63));
+        assert!(frames[0].contains(&63), "bright spot pixels saturate");
+        let tiny = Camera {
+            width: 8,
+            height: 8,
+            bit_depth: 16,
+        };
+        assert_eq!(CameraFrames::new(tiny, 1).frames(0, 1), vec![vec![50; 64]]);
+    }
+
+    #[test]
+    fn requests_parse() {
+        assert_eq!(
+            parse_request("capture 3 112 112 16\n"),
+            Some((
+                3,
+                Camera {
+                    width: 112,
+                    height: 112,
+                    bit_depth: 16
+                }
+            ))
+        );
+        assert_eq!(parse_request("capture 3 112 112"), None);
+        assert_eq!(parse_request("stop 3"), None);
+    }
+
+    #[test]
+    fn pack16_puts_the_first_pixel_low() {
+        assert_eq!(pack16(&[1, 2, 0xFFFF, 4]), vec![0x0002_0001, 0x0004_FFFF]);
+    }
+}
