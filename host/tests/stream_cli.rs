@@ -183,3 +183,75 @@ fn stream_out_has_flux_validity_and_provenance_in_every_format() {
     drop(device);
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// `stream --out --layout vector` writes the AO slope vector
+/// `[x_0..x_S-1, y_0..y_S-1]` per frame, as `process --layout vector`
+/// does; a configuration whose every sub-aperture is invalid gets the
+/// same warning as from `process`.
+#[test]
+fn stream_layout_vector_and_the_all_invalid_warning() {
+    let dir = scratch("layout");
+    let config = config(&dir, 5);
+    let frames = frames(&dir, 6);
+    let device = InProcessDevice::start_pty().unwrap();
+    let (c, f) = (config.to_str().unwrap(), frames.to_str().unwrap());
+    let reference = dir.join("ref.npy");
+    let (ok, text) = run(&[
+        "process",
+        "--config",
+        c,
+        "--frames",
+        f,
+        "--out",
+        reference.to_str().unwrap(),
+        "--layout",
+        "vector",
+    ]);
+    assert!(ok, "{text}");
+    let want = brightpix::io::read_array(&reference).unwrap();
+    assert_eq!(want.shape, [6, 8]);
+    for ext in ["npy", "fits"] {
+        let out = dir.join(format!("v.{ext}"));
+        let (ok, text) = run(&[
+            "stream",
+            "--port",
+            device.port(),
+            "--config",
+            c,
+            "--frames",
+            f,
+            "--out",
+            out.to_str().unwrap(),
+            "--layout",
+            "vector",
+        ]);
+        assert!(ok, "{ext}: {text}");
+        assert!(!text.contains("every sub-aperture is invalid"), "{text}");
+        let got = brightpix::io::read_array(&out).unwrap();
+        assert_eq!(got, want, "{ext}");
+    }
+    let json = std::fs::read_to_string(dir.join("v.json")).unwrap();
+    assert!(json.contains("\"bplayout\": \"vector\""), "{json}");
+
+    // A minimum flux no frame reaches: every sub-aperture invalid.
+    let dark = dir.join("dark.toml");
+    let text = std::fs::read_to_string(&config).unwrap();
+    std::fs::write(&dark, text + "[centroid]\nmin_flux_counts = 1e12\n").unwrap();
+    let d = dark.to_str().unwrap();
+    for command in ["process", "stream"] {
+        let out = dir.join(format!("dark-{command}.npy"));
+        let mut args = vec![command];
+        if command == "stream" {
+            args.extend(["--port", device.port()]);
+        }
+        args.extend(["--config", d, "--frames", f, "--out", out.to_str().unwrap()]);
+        let (ok, text) = run(&args);
+        assert!(ok, "{command}: {text}");
+        assert!(
+            text.contains("warning: in 6 of 6 frames every sub-aperture is invalid"),
+            "{command}: {text}"
+        );
+    }
+    drop(device);
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -1,5 +1,6 @@
 //! The `brightpix` command line: one module per subcommand.
 
+mod all_invalid;
 mod bench;
 mod capture;
 mod check_config;

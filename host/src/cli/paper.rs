@@ -18,7 +18,7 @@ R is the paper's eq. 1: RMS over independent turbulence realisations of (centre 
 the noiseless image, all pixels, f64) minus (the engine's slope from the noisy image with the\n\
 rule and N). Each case is simulated once and the engine run for every (rule, N) on the same\n\
 frames. Default sizes take a minute or two per figure on 2 cores; --quick is a smoke run.\n\n\
-Examples:\n  brightpix paper all --out paper-run\n  brightpix paper read-noise --out out --frames 5000 --seed 3\n  brightpix paper spot-size --out /tmp/smoke --quick"
+Examples:\n  brightpix paper all --out paper-run\n  brightpix paper read-noise --out out --count 5000 --seed 3\n  brightpix paper spot-size --out /tmp/smoke --quick"
 )]
 pub struct PaperArgs {
     /// A figure name, or `all`.
@@ -28,8 +28,8 @@ pub struct PaperArgs {
     out: PathBuf,
     /// Frames per case, >= 20 (default: 20000; sodium 8000; sensitivity 8000/4000; linearity:
     /// tilt steps, 301).
-    #[arg(long)]
-    frames: Option<usize>,
+    #[arg(long, value_name = "N")]
+    count: Option<usize>,
     /// Seed of the random streams.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -51,12 +51,12 @@ fn check(args: &PaperArgs) -> Result<Vec<&str>> {
             FIGURES.join(", ")
         );
     };
-    if let Some(k) = args.frames {
+    if let Some(k) = args.count {
         if k < 20 {
-            bail!("--frames {k}: at least 20 frames per case (or tilt steps) are needed");
+            bail!("--count {k}: at least 20 frames per case (or tilt steps) are needed");
         }
         if args.quick {
-            bail!("--frames and --quick both set the number of frames: give one");
+            bail!("--count and --quick both set the number of frames: give one");
         }
     }
     if args.out.exists() && !args.out.is_dir() {
@@ -73,7 +73,7 @@ pub fn run(args: PaperArgs) -> Result<()> {
     let names = check(&args)?;
     let opts = RunOptions {
         out: args.out.clone(),
-        frames: args.frames,
+        frames: args.count,
         seed: args.seed,
         quick: args.quick,
     };
@@ -117,7 +117,7 @@ mod tests {
         let out = dir.join("out");
         let o = out.to_str().unwrap();
         let started = std::time::Instant::now();
-        let e = run(&["brightpix", "paper", "all", "--out", o, "--frames", "0"]).unwrap_err();
+        let e = run(&["brightpix", "paper", "all", "--out", o, "--count", "0"]).unwrap_err();
         assert!(e.to_string().contains("at least 20"), "{e}");
         let e = run(&["brightpix", "paper", "nope", "--out", o]).unwrap_err();
         assert!(e.to_string().contains("unknown figure"), "{e}");

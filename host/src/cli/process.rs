@@ -165,12 +165,7 @@ pub fn run(args: ProcessArgs) -> Result<()> {
     }
     Staged::commit_all(staged)?;
     let invalid = results.valid.iter().filter(|&&v| v == 0).count();
-    let all_invalid = results.frames_all_invalid();
-    if all_invalid > 0 {
-        eprintln!(
-            "brightpix: warning: in {all_invalid} of {frames} frames every sub-aperture is invalid (flux at or below min_flux): check the frames, background and min_flux"
-        );
-    }
+    super::all_invalid::InvalidFrames::of_results(&results).warn();
     let seconds = elapsed.as_secs_f64().max(1e-9);
     let pixels = (frames * view.camera.pixel_count()) as f64;
     eprintln!(

@@ -9,17 +9,20 @@ use clap::Args;
 use crate::config_file::ProcessingConfig;
 use crate::io::results::complete_streamed;
 use crate::io::{
-    check_result_outputs, Appender, FrameSource, IoError, Provenance, Raw, Results, ResultsFormat,
+    check_result_outputs, Appender, FrameSource, IoError, Layout, Provenance, Raw, Results,
+    ResultsFormat,
 };
 use crate::link::verify::Verifier;
 use crate::link::{Client, FrameOutcome, PixelSink};
 use crate::sil::verify_outcomes;
 use crate::sim_device::{catch_interrupts, interrupted};
 
+use super::all_invalid::InvalidFrames;
+
 #[derive(Args)]
 #[command(
     about = "Configure a device, stream frames (.npy or FITS) to it, collect its slopes, optionally verify them bit for bit",
-    after_help = "Examples:\n  brightpix stream --port /dev/pts/4 --config examples/canary.toml --frames frames.npy --verify\n  brightpix stream --port /dev/ttyACM0 --config examples/canary.toml --frames frames.fits --out slopes.npy\n  brightpix stream --port /dev/pts/5 --config examples/canary.toml --frames f.npy --verify --pixels-fifo /tmp/bp/pixels.fifo\n\n\
+    after_help = "Examples:\n  brightpix stream --port /dev/pts/4 --config examples/canary.toml --frames frames.npy --verify\n  brightpix stream --port /dev/ttyACM0 --config examples/canary.toml --frames frames.fits --out slopes.npy\n  brightpix stream --port /dev/ttyACM0 --config examples/canary.toml --frames frames.npy --count 100 --out slopes.fits --layout vector\n  brightpix stream --port /dev/pts/5 --config examples/canary.toml --frames f.npy --verify --pixels-fifo /tmp/bp/pixels.fifo\n\n\
 With --verify every sub-aperture's slopes, flux and validity are compared with the reference\n\
 implementation (host/src/reference); the first mismatches are printed (frame, sub-aperture,\n\
 both values) and the exit status is non-zero on any mismatch or dropped frame.\n\
@@ -48,6 +51,10 @@ pub struct StreamArgs {
     /// kill the file holds every frame received; flux, validity and provenance follow at the end.
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Slopes layout of --out: pairs (frames, sub-apertures, 2) or vector (frames, 2 x
+    /// sub-apertures), [x_0..x_S-1, y_0..y_S-1] as AO codes (DARC, COMPASS, soapy) take them.
+    #[arg(long, value_enum, default_value_t = Layout::Pairs, requires = "out")]
+    layout: Layout,
     /// Send pixels through this FIFO instead of the link.
     #[arg(long, value_name = "PATH")]
     pixels_fifo: Option<PathBuf>,
@@ -104,11 +111,12 @@ pub fn run(args: StreamArgs) -> Result<()> {
     // Slopes go to the file as they arrive: it holds every frame received
     // so far at any moment, even if this process is killed.
     let mut out = match &args.out {
-        Some(path) => Some(SlopesFile::create(path, subapertures)?),
+        Some(path) => Some(SlopesFile::create(path, subapertures, args.layout)?),
         None => None,
     };
     let progress = super::progress::Progress::new(total as u64, "frames");
     let mut tally = Tally::default();
+    let mut invalid = InvalidFrames::default();
     let mut elapsed = std::time::Duration::ZERO;
     let mut first = 0;
     let mut failure = None;
@@ -136,6 +144,7 @@ pub fn run(args: StreamArgs) -> Result<()> {
         outcomes.sort_by_key(FrameOutcome::frame);
         for o in &outcomes {
             tally.count(o);
+            invalid.outcome(o, subapertures);
         }
         let sent = match &result {
             Ok(report) => report.frames_sent,
@@ -180,6 +189,7 @@ pub fn run(args: StreamArgs) -> Result<()> {
         tally.done as f64 / elapsed.as_secs_f64().max(1e-9),
         elapsed.as_secs_f64() * 1e6 / tally.done.max(1) as f64
     );
+    invalid.warn();
     if let Some(e) = failure {
         if args.verify {
             print_verification(&verifier, total);
@@ -281,6 +291,7 @@ impl Tally {
 struct SlopesFile {
     /// `None` for CSV, written whole at the end.
     file: Option<Appender>,
+    layout: Layout,
     results: Results,
     /// Outcomes that arrived ahead of an earlier frame's.
     waiting: std::collections::BTreeMap<u32, Vec<Option<Raw>>>,
@@ -288,13 +299,18 @@ struct SlopesFile {
 }
 
 impl SlopesFile {
-    fn create(path: &Path, subapertures: usize) -> Result<SlopesFile> {
+    fn create(path: &Path, subapertures: usize, layout: Layout) -> Result<SlopesFile> {
+        let row = match layout {
+            Layout::Pairs => vec![subapertures, 2],
+            Layout::Vector => vec![2 * subapertures],
+        };
         let file = match ResultsFormat::from_path(path)? {
             ResultsFormat::Csv => None,
-            _ => Some(Appender::create(path, &[subapertures, 2])?),
+            _ => Some(Appender::create(path, &row)?),
         };
         Ok(SlopesFile {
             file,
+            layout,
             results: Results::new(subapertures),
             waiting: Default::default(),
             next: None,
@@ -332,7 +348,7 @@ impl SlopesFile {
             self.results.push(raw);
         }
         match &mut self.file {
-            Some(file) => file.append(&self.results.slopes[before..]),
+            Some(file) => file.append(&self.layout.arrange(&self.results.slopes[before..])),
             None => Ok(()),
         }
     }
@@ -347,7 +363,7 @@ impl SlopesFile {
         if let Some(file) = self.file {
             file.finish()?;
         }
-        complete_streamed(path, &self.results, provenance)?;
+        complete_streamed(path, &self.results, provenance, self.layout)?;
         Ok(self.results.frames())
     }
 }

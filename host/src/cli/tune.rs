@@ -44,7 +44,7 @@ pub struct TuneArgs {
     /// Recorded frames (.npy or FITS cube of the configured camera): estimate signal per
     /// sub-aperture, background, read noise and spot size (r0) from them instead of the
     /// --photons, --read-noise, --background-error and --r0 options.
-    #[arg(long, value_name = "FILE")]
+    #[arg(long, value_name = "PATH")]
     frames: Option<PathBuf>,
     /// Fried parameter r0 (m) at 500 nm.
     #[arg(long, default_value_t = 0.125)]
@@ -116,8 +116,8 @@ pub struct TuneArgs {
     #[arg(long, default_value_t = 2)]
     angle_classes: usize,
     /// Frames simulated per class (>= 20).
-    #[arg(long, default_value_t = 4000)]
-    sim_frames: usize,
+    #[arg(long, value_name = "N", default_value_t = 4000)]
+    count: usize,
     /// Largest fraction of a spot's light allowed outside its window (a NGS spot at the
     /// paper's defaults loses 2.6% in Airy rings and seeing halo).
     #[arg(long, default_value_t = 0.05)]
@@ -180,10 +180,10 @@ struct Setup {
 }
 
 fn setup(args: &TuneArgs) -> Result<Setup> {
-    if args.sim_frames < 20 {
+    if args.count < 20 {
         bail!(
-            "--sim-frames {}: at least 20 frames per class are needed for a standard error",
-            args.sim_frames
+            "--count {}: at least 20 frames per class are needed for a standard error",
+            args.count
         );
     }
     if args.classes == 0 {
@@ -225,7 +225,7 @@ fn setup(args: &TuneArgs) -> Result<Setup> {
     if let Some(path) = &args.frames {
         if !path.is_file() {
             bail!(
-                "--frames {}: no such file (recorded frames, .npy or FITS; the number of simulated frames per class is --sim-frames)",
+                "--frames {}: no such file (recorded frames, .npy or FITS; the number of simulated frames per class is --count)",
                 path.display()
             );
         }
@@ -294,7 +294,7 @@ fn setup(args: &TuneArgs) -> Result<Setup> {
         measured_photons,
     };
     let options = TuneOptions {
-        frames: args.sim_frames,
+        frames: args.count,
         seed: args.seed,
         classes: args.classes,
         angle_classes: args.angle_classes,

@@ -39,6 +39,19 @@ pub enum Layout {
 }
 
 impl Layout {
+    /// One frame's slopes, `[x, y]` per sub-aperture, in this layout.
+    pub fn arrange(self, frame: &[f64]) -> Vec<f64> {
+        match self {
+            Layout::Pairs => frame.to_vec(),
+            Layout::Vector => {
+                let mut out = Vec::with_capacity(frame.len());
+                out.extend(frame.iter().step_by(2));
+                out.extend(frame.iter().skip(1).step_by(2));
+                out
+            }
+        }
+    }
+
     fn name(self) -> &'static str {
         match self {
             Layout::Pairs => "pairs",
@@ -327,8 +340,7 @@ impl Results {
             Layout::Vector => {
                 let mut out = Vec::with_capacity(self.slopes.len());
                 for frame in self.slopes.chunks_exact(2 * s.max(1)) {
-                    out.extend(frame.iter().step_by(2));
-                    out.extend(frame.iter().skip(1).step_by(2));
+                    out.extend(layout.arrange(frame));
                 }
                 (vec![frames, 2 * s], out)
             }
@@ -427,7 +439,7 @@ pub fn stage_results(
 
 /// Completes the output of `stream --out`, whose slopes were appended
 /// frame by frame to `path` (a `.npy`, or the primary image of a FITS
-/// file) as they arrived: `.npy` gains the rest of its set (flux,
+/// file) in `layout` as they arrived: `.npy` gains the rest of its set (flux,
 /// validity, provenance); FITS gains the provenance keywords in its primary
 /// header and the `FLUX` and `VALID` extensions (cfitsio). A `.csv` is
 /// written whole here.
@@ -435,8 +447,9 @@ pub fn complete_streamed(
     path: &Path,
     results: &Results,
     provenance: &Provenance,
+    layout: Layout,
 ) -> Result<(), IoError> {
-    let keywords = provenance.keywords(results, Layout::Pairs);
+    let keywords = provenance.keywords(results, layout);
     let (frames, s) = (results.frames(), results.subapertures);
     match ResultsFormat::from_path(path)? {
         ResultsFormat::Npy => {
@@ -448,7 +461,7 @@ pub fn complete_streamed(
             ])
         }
         ResultsFormat::Fits => super::fits_out::add_to_streamed(path, &keywords, results),
-        ResultsFormat::Csv => write_results(path, results, provenance, Layout::Pairs).map(drop),
+        ResultsFormat::Csv => write_results(path, results, provenance, layout).map(drop),
     }
 }
 

@@ -58,7 +58,7 @@ fn arguments_are_checked_before_any_work() {
     let o = out.to_str().unwrap();
     let started = std::time::Instant::now();
     for (extra, expected) in [
-        (vec!["--sim-frames", "0"], "at least 20"),
+        (vec!["--count", "0"], "at least 20"),
         (vec!["--classes", "0"], "at least one distance class"),
         (vec!["--angle-classes", "0"], "at least one azimuth class"),
         (vec!["--score", "sideways"], "one of along, pooled"),
@@ -115,7 +115,7 @@ fn tune_writes_a_configuration_that_process_accepts() {
         "0,0",
         "--classes",
         "2",
-        "--sim-frames",
+        "--count",
         "40",
     ])
     .unwrap();
@@ -181,7 +181,7 @@ fn sodium_is_scored_along_the_elongation_and_truncation_fails() {
         "1",
         "--angle-classes",
         "1",
-        "--sim-frames",
+        "--count",
         "20",
     ];
     let mut argv = common.to_vec();
@@ -242,7 +242,7 @@ fn tune_from_recorded_frames_measures_the_conditions() {
         out,
         "--frames",
         cube.to_str().unwrap(),
-        "--sim-frames",
+        "--count",
         "40",
     ])
     .unwrap();
