@@ -93,6 +93,9 @@ class Result:
     @property
     def n_subapertures(self) -> int: ...
     def __len__(self) -> int: ...
+    def save(
+        self, path: StrPath, *, layout: Literal["pairs", "vector"] = "pairs"
+    ) -> list[Path]: ...
 
 def process(
     frames: npt.NDArray[Any],

@@ -4,6 +4,7 @@
 //! |---|---|
 //! | a configuration that does not validate, a bad value or shape | `ValueError` |
 //! | a configuration or data file that cannot be read | `FileNotFoundError` / `OSError` |
+//! | a result file that cannot be written | `OSError`; an unknown extension `ValueError` |
 //! | a port that cannot be opened | `FileNotFoundError` / `PermissionError` / `OSError` |
 //! | a device that does not answer, or stops | `TimeoutError`, `ConnectionError` |
 //! | a device that refuses a request, or speaks another protocol | `brightpix.DeviceError` |
@@ -12,6 +13,7 @@
 use std::io;
 
 use brightpix::config_file::{ConfigFileError, ConfigFileErrorKind};
+use brightpix::io::IoError;
 use brightpix::link::LinkError;
 use pyo3::exceptions::{
     PyConnectionError, PyFileNotFoundError, PyOSError, PyPermissionError, PyRuntimeError,
@@ -105,5 +107,15 @@ pub fn other_error(e: anyhow::Error) -> PyErr {
     match e.downcast_ref::<io::Error>() {
         Some(io) => io_error(io.kind(), message),
         None => PyOSError::new_err(message),
+    }
+}
+
+/// A file the host library could not read or write: the operating system's
+/// refusals are `OSError`s, a wrong kind of file a `ValueError`.
+pub fn io_file_error(e: IoError) -> PyErr {
+    let message = e.to_string();
+    match &e {
+        IoError::Io { error, .. } => io_error(error.kind(), message),
+        _ => PyValueError::new_err(message),
     }
 }

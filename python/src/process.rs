@@ -1,13 +1,15 @@
 //! `brightpix.process`, `brightpix.centroid` and their `Result`: frames
 //! through the host's engine runner (or the reference), the GIL released.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use brightpix::config_file::{
     ArrayValues, BackgroundValues, ConfigValues, PixelValues, ProcessingConfig, RuleName,
     SubapertureValues,
 };
-use brightpix::io::FrameShape;
+use brightpix::io::{
+    check_result_outputs, write_results, FrameShape, Layout, Provenance, Raw, Results,
+};
 use brightpix::parallel::{BatchError, ParallelEngine};
 use brightpix::reference::Reference;
 use brightpix_protocol::{Camera, SubapertureWindow, MAX_WINDOW_SIDE};
@@ -17,7 +19,7 @@ use pyo3::prelude::*;
 
 use crate::arrays::{frames, to_numpy};
 use crate::config::PyConfig;
-use crate::errors::config_error;
+use crate::errors::{config_error, io_file_error};
 
 /// Results of a run, one entry per frame and sub-aperture, frame-major.
 #[derive(Default)]
@@ -140,6 +142,8 @@ pub struct PyResultSet {
     version: &'static str,
     frames: usize,
     subapertures: usize,
+    /// The results in the engine's integers, for [`PyResultSet::save`].
+    outputs: Outputs,
 }
 
 impl PyResultSet {
@@ -164,15 +168,32 @@ impl PyResultSet {
         Ok(PyResultSet {
             slopes: to_numpy(py, slopes, &with(2))?.unbind(),
             slopes_q16: to_numpy(py, q16, &with(2))?.unbind(),
-            flux: to_numpy(py, outputs.flux, &lead)?.unbind(),
-            valid: to_numpy(py, outputs.valid, &lead)?.unbind(),
-            received: to_numpy(py, outputs.received, &lead)?.unbind(),
+            flux: to_numpy(py, outputs.flux.clone(), &lead)?.unbind(),
+            valid: to_numpy(py, outputs.valid.clone(), &lead)?.unbind(),
+            received: to_numpy(py, outputs.received.clone(), &lead)?.unbind(),
             source,
             config,
             version: env!("CARGO_PKG_VERSION"),
             frames: f,
             subapertures: s,
+            outputs,
         })
+    }
+
+    /// The results as the command line's writers take them (a sub-aperture
+    /// whose result never arrived is `None`: NaN, invalid).
+    fn results(&self) -> Results {
+        let o = &self.outputs;
+        let mut results = Results::new(o.subapertures);
+        for k in 0..o.slopes.len() {
+            results.push(o.received[k].then(|| Raw {
+                slope_x: o.slopes[k][0],
+                slope_y: o.slopes[k][1],
+                flux: o.flux[k],
+                valid: o.valid[k],
+            }));
+        }
+        results
     }
 }
 
@@ -191,6 +212,46 @@ impl PyResultSet {
 
     fn __len__(&self) -> usize {
         self.frames
+    }
+
+    /// Write slopes, flux, validity and provenance as ``brightpix process
+    /// --out`` does, with the same writers, in the format of ``path``'s
+    /// extension (docs/OUTPUTS.md):
+    ///
+    /// - ``x.npy``: ``x.npy`` (slopes, float64 pixels), ``x.flux.npy``
+    ///   (float64 counts), ``x.valid.npy`` (uint8 0/1), ``x.json``
+    ///   (provenance);
+    /// - ``x.fits`` (``.fit``, ``.fts``): ``SLOPES``, ``FLUX`` and ``VALID``
+    ///   image extensions, provenance keywords in the primary header;
+    /// - ``x.csv``: one row per frame and sub-aperture.
+    ///
+    /// ``layout``: ``"pairs"`` (slopes ``(F, S, 2)``) or ``"vector"``
+    /// (``(F, 2S)``, ``[x_0..x_S-1, y_0..y_S-1]`` per frame, as AO codes take
+    /// them). A single-frame result is written as one frame. Every file is
+    /// written whole or not at all. Returns the paths written.
+    ///
+    /// Raises ``ValueError`` (unknown extension or layout),
+    /// ``FileNotFoundError`` (no such directory), ``OSError`` (the files
+    /// cannot be written).
+    #[pyo3(signature = (path, *, layout = "pairs"))]
+    fn save(&self, py: Python<'_>, path: PathBuf, layout: &str) -> PyResult<Vec<PathBuf>> {
+        let layout = match layout {
+            "pairs" => Layout::Pairs,
+            "vector" => Layout::Vector,
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "layout: {other:?}; expected \"pairs\" or \"vector\""
+                )))
+            }
+        };
+        let config = self.config.get().inner.view();
+        let producer = format!("brightpix Python package ({})", self.source);
+        let provenance = Provenance::of(producer, &config, None);
+        // Checked before any work, as the command line checks `--out`.
+        check_result_outputs(&[], &[&path]).map_err(io_file_error)?;
+        let results = self.results();
+        py.detach(|| write_results(&path, &results, &provenance, layout))
+            .map_err(io_file_error)
     }
 
     fn __repr__(&self) -> String {
