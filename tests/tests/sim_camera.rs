@@ -218,4 +218,23 @@ fn capture_verify_in_qemu() {
         "  QEMU: 20 frames captured at the board's 10 frames/s and verified bit for bit in {:.2} s",
         t.elapsed().as_secs_f64()
     );
+    // A second capture (its own request and FIFO) starts at frame 0 again.
+    capture(
+        device.port(),
+        &[
+            "--config",
+            &canary(),
+            "--count",
+            "3",
+            "--verify",
+            "--seed",
+            "9",
+        ],
+    )
+    .unwrap_or_else(|e| {
+        panic!(
+            "second capture: {e}\nfirmware log:\n{}",
+            device.decoded_log().unwrap_or_default()
+        )
+    });
 }

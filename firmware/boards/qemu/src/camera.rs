@@ -6,7 +6,8 @@
 //!
 //! The exchange with the host, in directory `DIR` (firmware/README.md,
 //! "The simulated camera"):
-//! 1. when a capture starts, the task appends one line to `DIR/requests`:
+//! 1. when a capture starts, the task writes one line to `DIR/requests`
+//!    (which it keeps open, each line after the last):
 //!    `capture ID WIDTH HEIGHT BIT_DEPTH` (ID counts captures from 1);
 //! 2. the host creates the FIFO `DIR/camera-ID.fifo` and writes frames of
 //!    that geometry into it, pixels as 16-bit little-endian, row after row
@@ -28,7 +29,7 @@ use core::fmt::Write as _;
 use brightpix_firmware::camera::{DataWidth, SimulatedCamera, SoftRing};
 use embassy_time::{Duration, Instant, Timer};
 use heapless::String;
-use semihosting::fs::OpenOptions;
+use semihosting::fs::{File, OpenOptions};
 use semihosting::io::Write as _;
 use static_cell::ConstStaticCell;
 
@@ -72,6 +73,9 @@ pub async fn feed(dir: String<MAX_PATH>, fps: u32) {
         dir.as_str(),
         fps
     );
+    let Some(mut requests) = open_requests(&dir) else {
+        return;
+    };
     loop {
         let capture = loop {
             match RING.capture() {
@@ -82,7 +86,7 @@ pub async fn feed(dir: String<MAX_PATH>, fps: u32) {
         last = capture.id;
         let camera = capture.camera;
         let frame_bytes = camera.pixel_count() * 2;
-        if !request(&dir, capture.id, camera) {
+        if !request(&mut requests, capture.id, camera) {
             continue;
         }
         let Some(mut file) = open_fifo(&dir, capture.id).await else {
@@ -144,34 +148,50 @@ pub async fn feed(dir: String<MAX_PATH>, fps: u32) {
     }
 }
 
-/// Appends the request line of capture `id` to `DIR/requests`.
-fn request(dir: &str, id: u32, camera: brightpix_protocol::Camera) -> bool {
+/// Opens `DIR/requests` for the task's request lines. It stays open: QEMU
+/// 7.2 does not honour semihosting's append mode (a reopened file is
+/// written from its start again), so the lines follow one another through
+/// the one file position.
+fn open_requests(dir: &str) -> Option<File> {
     let mut path: String<{ MAX_PATH + 1 }> = String::new();
-    let mut line: String<64> = String::new();
-    let ok = write!(path, "{dir}/requests\0").is_ok()
-        && writeln!(
-            line,
-            "capture {id} {} {} {}",
-            camera.width, camera.height, camera.bit_depth
-        )
-        .is_ok();
-    let Ok(cpath) = core::ffi::CStr::from_bytes_until_nul(path.as_bytes()) else {
-        return false;
-    };
-    if !ok {
+    if write!(path, "{dir}/requests\0").is_err() {
         defmt::error!("camera: the request path is too long");
+        return None;
+    }
+    let cpath = core::ffi::CStr::from_bytes_until_nul(path.as_bytes()).ok()?;
+    match OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(true)
+        .open(cpath)
+    {
+        Ok(file) => Some(file),
+        Err(e) => {
+            defmt::error!(
+                "camera: cannot open {=str}/requests ({}); no frames",
+                dir,
+                defmt::Debug2Format(&e)
+            );
+            None
+        }
+    }
+}
+
+/// Writes the request line of capture `id`.
+fn request(requests: &mut File, id: u32, camera: brightpix_protocol::Camera) -> bool {
+    let mut line: String<64> = String::new();
+    if writeln!(
+        line,
+        "capture {id} {} {} {}",
+        camera.width, camera.height, camera.bit_depth
+    )
+    .is_err()
+    {
         return false;
     }
-    let written = OpenOptions::new()
-        .write(true)
-        .append(true)
-        .create(true)
-        .open(cpath)
-        .and_then(|mut f| f.write_all(line.as_bytes()));
-    if let Err(e) = written {
+    if let Err(e) = requests.write_all(line.as_bytes()) {
         defmt::error!(
-            "camera: cannot write {=str}/requests ({})",
-            dir,
+            "camera: cannot write a request ({})",
             defmt::Debug2Format(&e)
         );
         return false;
