@@ -19,12 +19,12 @@
 use super::calibrate::{self, raw_floor, Calibrator, Steps, WindowBounds, With};
 use super::centroid::{Centroider, Moments, SubapertureResult};
 use super::memory::{EngineMemory, MemorySize};
+use super::plan::plan;
 use super::prefilter;
+use super::scan::{admit_words, scan, Segment, Stop, TierEnds, WordRun};
 use super::select::{self, buffer_capacity, pack, Buffer, Cut, Entry, Tiers, Ties, WindowRule};
 use super::window::{OpenWindow, SubapertureState};
-use brightpix_protocol::{
-    Calibration, Config, ConfigError, MemoryKind, SubapertureWindow, MAX_WINDOW_SIDE,
-};
+use brightpix_protocol::{Calibration, Config, ConfigError, MAX_WINDOW_SIDE};
 
 /// Where results go.
 pub trait OutputSink {
@@ -311,15 +311,19 @@ impl<'c, 'm> Engine<'c, 'm> {
             // Most segments: a selecting window whose pre-filter rejects the
             // whole segment (`floor` is capped so that an out-of-range pixel
             // is never rejected).
-            let quiet = window.capacity != 0
-                && !window.rescan
+            let filtered = window.capacity != 0 && !window.rescan;
+            let quiet = filtered
                 && (window.floor >= calibrate::FLOOR_NONE
                     || (window.floor != 0 && !prefilter::any_at_least(raw, window.floor as u16)));
             let last = row == window.last_row;
             if !quiet {
                 let j = row - window.y;
-                self.segment_rest::<S, CHECK>(slot, raw, row_offset + x, 0, j)
-                    .map_err(|b| x + b)?;
+                if filtered {
+                    self.hot_segment::<S, CHECK>(slot, raw, row_offset + x, 0, j)
+                } else {
+                    self.segment_rest::<S, CHECK>(slot, raw, row_offset + x, 0, j)
+                }
+                .map_err(|b| x + b)?;
             }
             if last {
                 self.finish(slot, sink);
@@ -430,15 +434,16 @@ impl<'c, 'm> Engine<'c, 'm> {
         // The common case first, in as few instructions as it takes: a
         // selecting window whose segment the pre-filter rejects whole.
         let window = &self.memory.open[slot];
-        if window.capacity != 0 && !window.rescan {
-            let floor = window.floor;
-            if floor >= calibrate::FLOOR_NONE
-                || (floor != 0 && !prefilter::any_at_least(raw, floor as u16))
-            {
-                return Ok(());
-            }
+        if window.capacity == 0 || window.rescan {
+            return self.segment_rest::<S, CHECK>(slot, raw, pixel, i0, j);
         }
-        self.segment_rest::<S, CHECK>(slot, raw, pixel, i0, j)
+        let floor = window.floor;
+        if floor >= calibrate::FLOOR_NONE
+            || (floor != 0 && !prefilter::any_at_least(raw, floor as u16))
+        {
+            return Ok(());
+        }
+        self.hot_segment::<S, CHECK>(slot, raw, pixel, i0, j)
     }
 
     /// The rest of [`segment`](Self::segment): windows without selection,
@@ -508,23 +513,79 @@ impl<'c, 'm> Engine<'c, 'm> {
             place(window, entries, entry);
             start = k + 1;
         }
-        // Once the front and hint ties prove the cutoff is at or above the
-        // hint, nothing below it can matter, and often no more pixels equal
-        // to it: filter the rest of the window harder.
-        if !window.strict
-            && window.front + window.hint_ties.count >= window.n
-            && covers(window, entries, &self.config)
+        raise_to_hint(window, entries, &self.config, max_raw);
+        Ok(())
+    }
+
+    /// A selecting window's segment that the pre-filter did not reject
+    /// whole: the usual case (room for every pixel, whole words, the seed
+    /// in force) in as few instructions as it takes, the others in
+    /// [`segment_rest`](Self::segment_rest).
+    #[inline(never)]
+    fn hot_segment<S: Steps, const CHECK: bool>(
+        &mut self,
+        slot: usize,
+        raw: &[u16],
+        pixel: usize,
+        i0: u16,
+        j: u16,
+    ) -> Result<(), usize> {
+        let window = &self.memory.open[slot];
+        let (front, back, capacity) = (
+            window.front as usize,
+            window.back as usize,
+            window.capacity as usize,
+        );
+        let whole_words = (raw.as_ptr() as usize & 3) | (raw.len() & 1) == 0;
+        // capacity - front - back >= raw.len() also excludes capacity 0.
+        if window.rescan
+            || window.floor.wrapping_sub(1) >= calibrate::FLOOR_NONE - 1
+            || capacity - front - back < raw.len()
+            || !whole_words
         {
-            window.back = 0;
-            window.low = window.hint;
-            window.low_ties = Ties::NONE;
-            window.strict = Tiers::hint_ties_settled(
-                self.config.selection.rule,
-                window.n,
-                window.front - window.at_hint,
-            );
-            window.floor = admission_floor(&self.config.calibration, max_raw, window);
+            return self.segment_rest::<S, CHECK>(slot, raw, pixel, i0, j);
         }
+        let (background, gain, fixed) =
+            calibrate::run_maps(&self.config.calibration, pixel, raw.len());
+        let memory = &mut self.memory;
+        let window = &mut memory.open[slot];
+        let base = window.slot as usize * self.stride;
+        let entries = &mut memory.entries[base..base + capacity];
+        let origin = entries.as_mut_ptr();
+        let run = WordRun {
+            first: 0,
+            background,
+            gain,
+            fixed,
+            lanes: (window.floor - 1) * 0x0001_0001,
+            admit: if window.strict {
+                window.hint.saturating_add(1)
+            } else {
+                window.low
+            },
+            hint: window.hint,
+            base: pack(i0, j),
+            max_raw: self.max_raw,
+        };
+        // SAFETY: `raw` is word-aligned and of even length (checked), so it
+        // is `raw.len() / 2` words; the maps cover the segment (run_maps);
+        // front + back <= capacity, and the room left holds every pixel
+        // (checked).
+        let bad = unsafe {
+            let words = core::slice::from_raw_parts(raw.as_ptr() as *const u32, raw.len() / 2);
+            let mut ends = TierEnds {
+                front_end: origin.add(front),
+                back_start: origin.add(capacity - back),
+            };
+            let bad = admit_words::<S, CHECK>(words, &run, &mut ends);
+            window.front = ends.front_end.offset_from(origin) as u16;
+            window.back = (capacity - ends.back_start.offset_from(origin) as usize) as u16;
+            bad
+        };
+        if let Some(k) = bad {
+            return Err(k);
+        }
+        raise_to_hint(window, entries, &self.config, self.max_raw);
         Ok(())
     }
 
@@ -809,114 +870,6 @@ fn copy_pixels(from: &[u16], to: &mut [u16]) {
     tt.copy_from_slice(ft);
 }
 
-/// Why [`scan`] stopped before the end of its run.
-enum Stop {
-    End,
-    /// The pixel at this offset of the segment is above the bit depth.
-    OutOfRange(usize),
-    /// The buffer is full; the pixel at offset `k` is still to be placed.
-    Full {
-        k: usize,
-        entry: Entry,
-    },
-}
-
-/// One window's run of pixels to scan, with what calibrating them takes.
-struct Segment<'a> {
-    /// Pixels `start ..` of the segment.
-    raw: &'a [u16],
-    start: usize,
-    /// The whole segment's maps, as `calibrate::run_maps` gives them.
-    background: &'a [i32],
-    gain: &'a [u16],
-    fixed: i32,
-    /// Packed position of the segment's first pixel.
-    base: u16,
-    max_raw: u16,
-}
-
-/// The hot loop: admits the pixels of a segment that reach the window's
-/// raw floor and calibrate to at least its admission threshold. In the
-/// scan the tiers are only two: `p >= hint` goes to the front, below it to
-/// the back (pixels equal to the hint or to `low` stay individual entries;
-/// only a compaction gathers them into tie buckets, see `select.rs`).
-#[inline(always)]
-fn scan<S: Steps, const CHECK: bool>(
-    window: &mut OpenWindow,
-    entries: &mut [Entry],
-    segment: &Segment<'_>,
-) -> Stop {
-    let Segment {
-        raw,
-        start,
-        background,
-        gain,
-        fixed,
-        base,
-        max_raw,
-    } = *segment;
-    let capacity = entries.len();
-    let hint = window.hint;
-    let admit = if window.strict {
-        hint.saturating_add(1)
-    } else {
-        window.low
-    };
-    let floor = window.floor;
-    let (front, back) = (window.front as usize, window.back as usize);
-    // The maps cover the whole segment; the scan reads offsets `start ..`.
-    let end = start + raw.len();
-    assert!((!S::BACKGROUND || background.len() >= end) && (!S::GAIN || gain.len() >= end));
-    assert!(front + back <= capacity);
-    let mut filled = Tiers2 {
-        front,
-        back,
-        capacity,
-    };
-    let stop = if capacity - front - back >= raw.len() {
-        // Room for every pixel of the run: no check of room per pixel.
-        scan_run::<S, CHECK, false>(
-            raw,
-            start,
-            floor,
-            admit,
-            hint,
-            background,
-            gain,
-            fixed,
-            base,
-            max_raw,
-            entries,
-            &mut filled,
-        )
-    } else {
-        scan_run::<S, CHECK, true>(
-            raw,
-            start,
-            floor,
-            admit,
-            hint,
-            background,
-            gain,
-            fixed,
-            base,
-            max_raw,
-            entries,
-            &mut filled,
-        )
-    };
-    window.front = filled.front as u16;
-    window.back = filled.back as u16;
-    stop
-}
-
-/// How much of a candidate buffer the front and back fill.
-struct Tiers2 {
-    front: usize,
-    back: usize,
-    capacity: usize,
-}
-
 /// Counts the front entries equal to the hint that arrived since the last
 /// count: `at_hint` is kept lazily, since only the tests of whether the front
 /// covers the hint, compaction and the window's end need it.
@@ -933,155 +886,25 @@ fn count_at_hint(entries: &[Entry], hint: i32) -> u16 {
     entries.iter().filter(|e| e.value == hint).count() as u16
 }
 
-/// The pixel loop of [`scan`]; `ROOM`: check for room before each store.
-#[allow(clippy::too_many_arguments)]
+/// Once the front and hint ties prove the cutoff is at or above the hint,
+/// nothing below it can matter, and often no more pixels equal to it: the
+/// rest of the window is filtered harder.
 #[inline(always)]
-fn scan_run<S: Steps, const CHECK: bool, const ROOM: bool>(
-    raw: &[u16],
-    start: usize,
-    floor: u32,
-    admit: i32,
-    hint: i32,
-    background: &[i32],
-    gain: &[u16],
-    fixed: i32,
-    base: u16,
-    max_raw: u16,
-    entries: &mut [Entry],
-    filled: &mut Tiers2,
-) -> Stop {
-    let capacity = filled.capacity;
-    debug_assert!(capacity <= entries.len());
-    let origin = entries.as_mut_ptr();
-    // SAFETY (for every pointer below): `front` and `back` are the tiers'
-    // ends, front + back <= capacity <= entries.len(); a store happens only
-    // where room was proved: for the whole run by the caller (`!ROOM`,
-    // capacity - front - back >= raw.len() and each pixel stores at most
-    // once) or just before it (`ROOM`).
-    let mut front_end = unsafe { origin.add(filled.front) };
-    let mut back_start = unsafe { origin.add(capacity - filled.back) };
-    let mut stop = Stop::End;
-    // One pixel: r at offset k of the segment (k < end, within the maps).
-    macro_rules! pixel {
-        ($out:lifetime, $k:expr, $r:expr) => {{
-            let (k, r) = ($k, $r);
-            if CHECK && r > max_raw {
-                stop = Stop::OutOfRange(k);
-                break $out;
-            }
-            // SAFETY: k < start + raw.len() <= the maps' lengths (asserted
-            // by `scan`).
-            let p =
-                unsafe { calibrate::value_in_run_unchecked::<S>(r, k, background, gain, fixed) };
-            if p >= admit {
-                let entry = Entry {
-                    value: p,
-                    position: (base + k as u16) as u32,
-                };
-                if ROOM && front_end == back_start {
-                    stop = Stop::Full { k, entry };
-                    break $out;
-                }
-                // SAFETY: see above.
-                unsafe {
-                    if p >= hint {
-                        front_end.write(entry);
-                        front_end = front_end.add(1);
-                    } else {
-                        back_start = back_start.sub(1);
-                        back_start.write(entry);
-                    }
-                }
-            }
-        }};
+fn raise_to_hint(window: &mut OpenWindow, entries: &[Entry], config: &Config<'_>, max_raw: u16) {
+    if !window.strict
+        && window.front + window.hint_ties.count >= window.n
+        && covers(window, entries, config)
+    {
+        window.back = 0;
+        window.low = window.hint;
+        window.low_ties = Ties::NONE;
+        window.strict = Tiers::hint_ties_settled(
+            config.selection.rule,
+            window.n,
+            window.front - window.at_hint,
+        );
+        window.floor = admission_floor(&config.calibration, max_raw, window);
     }
-    #[allow(clippy::never_loop)]
-    'scan: loop {
-        if floor == 0 {
-            for (k, &r) in raw.iter().enumerate() {
-                pixel!('scan, start + k, r);
-            }
-            break 'scan;
-        }
-        // floor <= 2^16 - 1 here: a floor of 2^16 skips the segment.
-        let below = (floor - 1) as u16;
-        #[cfg(target_arch = "arm")]
-        {
-            let lanes = below as u32 * 0x0001_0001;
-            // SAFETY: any pair of u16 is a valid u32; align_to only splits
-            // the slice where the words are aligned.
-            let (head, words, tail) = unsafe { raw.align_to::<u32>() };
-            let mut k = start;
-            for &r in head {
-                if r > below {
-                    pixel!('scan, k, r);
-                }
-                k += 1;
-            }
-            let pairs = k;
-            for (w, &word) in words.iter().enumerate() {
-                let passing = prefilter::uqsub16(word, lanes);
-                if passing != 0 {
-                    let k = pairs + 2 * w;
-                    if passing & 0xffff != 0 {
-                        pixel!('scan, k, word as u16);
-                    }
-                    if passing >> 16 != 0 {
-                        pixel!('scan, k + 1, (word >> 16) as u16);
-                    }
-                }
-            }
-            for (k, &r) in (pairs + 2 * words.len()..).zip(tail) {
-                if r > below {
-                    pixel!('scan, k, r);
-                }
-            }
-        }
-        // Hosts: where room for every pixel is proved and no pixel needs a
-        // range check, branch-free (the branches of a hot segment are
-        // taken at random, which costs a superscalar core more than doing
-        // every pixel): each pixel is written at both tiers' free ends and
-        // kept by advancing the end of the tier it belongs to. Room holds:
-        // before each pixel the free gap is at least one entry, and where
-        // the two writes meet they write the same entry.
-        #[cfg(not(target_arch = "arm"))]
-        if !ROOM && !CHECK {
-            for (k, &r) in raw.iter().enumerate() {
-                let k = start + k;
-                // SAFETY: k < start + raw.len() <= the maps' lengths.
-                let p = unsafe {
-                    calibrate::value_in_run_unchecked::<S>(r, k, background, gain, fixed)
-                };
-                let entry = Entry {
-                    value: p,
-                    position: (base + k as u16) as u32,
-                };
-                let admitted = p >= admit;
-                let upper = p >= hint;
-                // SAFETY: front_end < back_start (see above).
-                unsafe {
-                    front_end.write(entry);
-                    back_start.sub(1).write(entry);
-                    front_end = front_end.add((admitted & upper) as usize);
-                    back_start = back_start.sub((admitted & !upper) as usize);
-                }
-            }
-            break 'scan;
-        }
-        #[cfg(not(target_arch = "arm"))]
-        for (k, &r) in raw.iter().enumerate() {
-            if r > below {
-                pixel!('scan, start + k, r);
-            }
-        }
-        break 'scan;
-    }
-    // SAFETY: both pointers stay within the buffer (see above).
-    unsafe {
-        filled.front = front_end.offset_from(origin) as usize;
-        filled.back = capacity - back_start.offset_from(origin) as usize;
-    }
-    stop
 }
 
 /// The pre-filter's raw floor for a window's admission threshold, lowered
@@ -1193,174 +1016,5 @@ fn check_range(raw: &[u16], max_raw: u16) -> Result<(), usize> {
         Err(raw.iter().position(|&r| r > max_raw).unwrap_or(0))
     } else {
         Ok(())
-    }
-}
-
-/// Sizes of an engine for a configuration.
-struct Plan {
-    /// Candidate entries per open window.
-    stride: usize,
-    /// Rows of the history ring.
-    history_rows: usize,
-    needed: MemorySize,
-}
-
-/// Validates `config`, sorts its windows into `order` (by first row, then
-/// column) and sizes the engine, using `heap` as scratch for counting open
-/// windows; fails if it does not fit `available`.
-fn plan(
-    config: &Config<'_>,
-    available: MemorySize,
-    order: &mut [u16],
-    heap: &mut [u16],
-) -> Result<Plan, ConfigError> {
-    config.validate()?;
-    let windows = config.windows;
-    let count = windows.len();
-    let subapertures = available.subapertures.min(order.len());
-    if count > subapertures {
-        return Err(ConfigError::MemoryBudget {
-            needed: count,
-            available: subapertures,
-            what: MemoryKind::Subapertures,
-        });
-    }
-    let order = &mut order[..count];
-    for (k, o) in order.iter_mut().enumerate() {
-        *o = k as u16;
-    }
-    order.sort_unstable_by_key(|&k| (windows[k as usize].y, windows[k as usize].x));
-    let rule = config.selection.rule;
-    let (mut stride, mut history_rows, mut scratch) = (0usize, 0usize, 0usize);
-    for (k, w) in windows.iter().enumerate() {
-        let capacity = buffer_capacity(rule, config.pixel_count(k), w.pixel_count()) as usize;
-        if capacity > 0 {
-            stride = stride.max(capacity);
-            history_rows = history_rows.max(w.height as usize);
-            scratch = scratch.max(w.pixel_count());
-        }
-    }
-    let open = match count_open_windows(windows, order, heap) {
-        Some(open) if open <= available.open_windows => open,
-        found => {
-            return Err(ConfigError::MemoryBudget {
-                needed: found.unwrap_or_else(|| count_open_windows_slowly(windows)),
-                available: available.open_windows,
-                what: MemoryKind::OpenWindows,
-            })
-        }
-    };
-    let needed = MemorySize {
-        subapertures: count,
-        open_windows: open,
-        pool_entries: open * stride,
-        history_pixels: history_rows * config.camera.width as usize,
-        scratch_entries: scratch,
-    };
-    let checks = [
-        (
-            needed.pool_entries,
-            available.pool_entries,
-            MemoryKind::SelectionEntries,
-        ),
-        (
-            needed.history_pixels,
-            available.history_pixels,
-            MemoryKind::RowHistory,
-        ),
-        (
-            needed.scratch_entries,
-            available.scratch_entries,
-            MemoryKind::ScratchEntries,
-        ),
-    ];
-    for (needed, available, what) in checks {
-        if needed > available {
-            return Err(ConfigError::MemoryBudget {
-                needed,
-                available,
-                what,
-            });
-        }
-    }
-    Ok(Plan {
-        stride,
-        history_rows,
-        needed,
-    })
-}
-
-/// The largest number of windows open at once over a frame, using `heap`
-/// as a min-heap of last rows; `None` if more than `heap.len()`.
-fn count_open_windows(
-    windows: &[SubapertureWindow],
-    order: &[u16],
-    heap: &mut [u16],
-) -> Option<usize> {
-    let mut len = 0usize;
-    let mut most = 0usize;
-    for &k in order {
-        let w = windows[k as usize];
-        // Close the windows that ended before this one's first row.
-        while len > 0 && heap[0] < w.y {
-            len -= 1;
-            heap[0] = heap[len];
-            sift_down_rows(&mut heap[..len]);
-        }
-        if len == heap.len() {
-            return None;
-        }
-        heap[len] = w.last_row();
-        len += 1;
-        sift_up_rows(&mut heap[..len]);
-        most = most.max(len);
-    }
-    Some(most)
-}
-
-/// Exact count for the error message, without memory: O(windows^2).
-fn count_open_windows_slowly(windows: &[SubapertureWindow]) -> usize {
-    windows
-        .iter()
-        .map(|a| {
-            windows
-                .iter()
-                .filter(|b| b.y <= a.y && a.y <= b.last_row())
-                .count()
-        })
-        .max()
-        .unwrap_or(0)
-}
-
-fn sift_up_rows(heap: &mut [u16]) {
-    let mut i = heap.len() - 1;
-    while i > 0 {
-        let parent = (i - 1) / 2;
-        if heap[parent] <= heap[i] {
-            break;
-        }
-        heap.swap(i, parent);
-        i = parent;
-    }
-}
-
-fn sift_down_rows(heap: &mut [u16]) {
-    let mut i = 0;
-    loop {
-        let left = 2 * i + 1;
-        if left >= heap.len() {
-            break;
-        }
-        let right = left + 1;
-        let child = if right < heap.len() && heap[right] < heap[left] {
-            right
-        } else {
-            left
-        };
-        if heap[child] >= heap[i] {
-            break;
-        }
-        heap.swap(i, child);
-        i = child;
     }
 }

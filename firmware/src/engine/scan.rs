@@ -1,0 +1,420 @@
+//! The hot loop: one window's run of pixels in a row, admitted into its
+//! candidate buffer (see `select.rs` for the tiers).
+//!
+//! Pixels are read two at a time as a word; one `UQSUB16` against the
+//! window's raw floor in both lanes tells whether either can reach the
+//! admission threshold (`prefilter.rs`), and only those are calibrated.
+
+use super::calibrate::{self, Steps};
+use super::prefilter;
+use super::select::Entry;
+use super::window::OpenWindow;
+
+/// Why [`scan`] stopped before the end of its run.
+pub(super) enum Stop {
+    End,
+    /// The pixel at this offset of the segment is above the bit depth.
+    OutOfRange(usize),
+    /// The buffer is full; the pixel at offset `k` is still to be placed.
+    Full {
+        k: usize,
+        entry: Entry,
+    },
+}
+
+/// One window's run of pixels to scan, with what calibrating them takes.
+pub(super) struct Segment<'a> {
+    /// Pixels `start ..` of the segment.
+    pub(super) raw: &'a [u16],
+    pub(super) start: usize,
+    /// The whole segment's maps, as `calibrate::run_maps` gives them.
+    pub(super) background: &'a [i32],
+    pub(super) gain: &'a [u16],
+    pub(super) fixed: i32,
+    /// Packed position of the segment's first pixel.
+    pub(super) base: u16,
+    pub(super) max_raw: u16,
+}
+
+/// The hot loop: admits the pixels of a segment that reach the window's
+/// raw floor and calibrate to at least its admission threshold. In the
+/// scan the tiers are only two: `p >= hint` goes to the front, below it to
+/// the back (pixels equal to the hint or to `low` stay individual entries;
+/// only a compaction gathers them into tie buckets, see `select.rs`).
+#[inline(always)]
+pub(super) fn scan<S: Steps, const CHECK: bool>(
+    window: &mut OpenWindow,
+    entries: &mut [Entry],
+    segment: &Segment<'_>,
+) -> Stop {
+    let Segment {
+        raw,
+        start,
+        background,
+        gain,
+        fixed,
+        base,
+        max_raw,
+    } = *segment;
+    let capacity = entries.len();
+    let hint = window.hint;
+    let admit = if window.strict {
+        hint.saturating_add(1)
+    } else {
+        window.low
+    };
+    let floor = window.floor;
+    let (front, back) = (window.front as usize, window.back as usize);
+    // The maps cover the whole segment; the scan reads offsets `start ..`.
+    let end = start + raw.len();
+    assert!((!S::BACKGROUND || background.len() >= end) && (!S::GAIN || gain.len() >= end));
+    assert!(front + back <= capacity);
+    let mut filled = Tiers2 {
+        front,
+        back,
+        capacity,
+    };
+    let stop = if capacity - front - back >= raw.len() {
+        // Room for every pixel of the run: no check of room per pixel.
+        scan_run::<S, CHECK, false>(
+            raw,
+            start,
+            floor,
+            admit,
+            hint,
+            background,
+            gain,
+            fixed,
+            base,
+            max_raw,
+            entries,
+            &mut filled,
+        )
+    } else {
+        scan_run::<S, CHECK, true>(
+            raw,
+            start,
+            floor,
+            admit,
+            hint,
+            background,
+            gain,
+            fixed,
+            base,
+            max_raw,
+            entries,
+            &mut filled,
+        )
+    };
+    window.front = filled.front as u16;
+    window.back = filled.back as u16;
+    stop
+}
+
+/// How much of a candidate buffer the front and back fill.
+pub(super) struct Tiers2 {
+    pub(super) front: usize,
+    pub(super) back: usize,
+    pub(super) capacity: usize,
+}
+
+/// The pixel loop of [`scan`]; `ROOM`: check for room before each store.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub(super) fn scan_run<S: Steps, const CHECK: bool, const ROOM: bool>(
+    raw: &[u16],
+    start: usize,
+    floor: u32,
+    admit: i32,
+    hint: i32,
+    background: &[i32],
+    gain: &[u16],
+    fixed: i32,
+    base: u16,
+    max_raw: u16,
+    entries: &mut [Entry],
+    filled: &mut Tiers2,
+) -> Stop {
+    let capacity = filled.capacity;
+    debug_assert!(capacity <= entries.len());
+    let origin = entries.as_mut_ptr();
+    // SAFETY (for every pointer below): `front` and `back` are the tiers'
+    // ends, front + back <= capacity <= entries.len(); a store happens only
+    // where room was proved: for the whole run by the caller (`!ROOM`,
+    // capacity - front - back >= raw.len() and each pixel stores at most
+    // once) or just before it (`ROOM`).
+    let mut front_end = unsafe { origin.add(filled.front) };
+    let mut back_start = unsafe { origin.add(capacity - filled.back) };
+    let mut stop = Stop::End;
+    // One pixel: r at offset k of the segment (k < end, within the maps).
+    macro_rules! pixel {
+        ($out:lifetime, $k:expr, $r:expr) => {{
+            let (k, r) = ($k, $r);
+            if CHECK && r > max_raw {
+                stop = Stop::OutOfRange(k);
+                break $out;
+            }
+            // SAFETY: k < start + raw.len() <= the maps' lengths (asserted
+            // by `scan`).
+            let p =
+                unsafe { calibrate::value_in_run_unchecked::<S>(r, k, background, gain, fixed) };
+            if p >= admit {
+                let entry = Entry {
+                    value: p,
+                    position: (base + k as u16) as u32,
+                };
+                if ROOM && front_end == back_start {
+                    stop = Stop::Full { k, entry };
+                    break $out;
+                }
+                // SAFETY: see above.
+                unsafe {
+                    if p >= hint {
+                        front_end.write(entry);
+                        front_end = front_end.add(1);
+                    } else {
+                        back_start = back_start.sub(1);
+                        back_start.write(entry);
+                    }
+                }
+            }
+        }};
+    }
+    #[allow(clippy::never_loop)]
+    'scan: loop {
+        if floor == 0 {
+            for (k, &r) in raw.iter().enumerate() {
+                pixel!('scan, start + k, r);
+            }
+            break 'scan;
+        }
+        // floor <= 2^16 - 1 here: a floor of 2^16 skips the segment.
+        let below = (floor - 1) as u16;
+        // Hosts: where room for every pixel is proved and no pixel needs a
+        // range check, branch-free (the branches of a hot segment are
+        // taken at random, which costs a superscalar core more than doing
+        // every pixel): each pixel is written at both tiers' free ends and
+        // kept by advancing the end of the tier it belongs to. Room holds:
+        // before each pixel the free gap is at least one entry, and where
+        // the two writes meet they write the same entry.
+        #[cfg(not(target_arch = "arm"))]
+        if !ROOM && !CHECK {
+            for (k, &r) in raw.iter().enumerate() {
+                let k = start + k;
+                // SAFETY: k < start + raw.len() <= the maps' lengths.
+                let p = unsafe {
+                    calibrate::value_in_run_unchecked::<S>(r, k, background, gain, fixed)
+                };
+                let entry = Entry {
+                    value: p,
+                    position: (base + k as u16) as u32,
+                };
+                let admitted = p >= admit;
+                let upper = p >= hint;
+                // SAFETY: front_end < back_start (see above).
+                unsafe {
+                    front_end.write(entry);
+                    back_start.sub(1).write(entry);
+                    front_end = front_end.add((admitted & upper) as usize);
+                    back_start = back_start.sub((admitted & !upper) as usize);
+                }
+            }
+            break 'scan;
+        }
+        let lanes = below as u32 * 0x0001_0001;
+        // SAFETY: any pair of u16 is a valid u32; align_to only splits the
+        // slice where the words are aligned.
+        let (head, words, tail) = unsafe { raw.align_to::<u32>() };
+        let mut k = start;
+        for &r in head {
+            if r > below {
+                pixel!('scan, k, r);
+            }
+            k += 1;
+        }
+        let pairs = k;
+        if ROOM {
+            for (w, &word) in words.iter().enumerate() {
+                let passing = prefilter::uqsub16(word, lanes);
+                if passing != 0 {
+                    let k = pairs + 2 * w;
+                    if passing & 0xffff != 0 {
+                        pixel!('scan, k, word as u16);
+                    }
+                    if passing >> 16 != 0 {
+                        pixel!('scan, k + 1, (word >> 16) as u16);
+                    }
+                }
+            }
+        } else {
+            let run = WordRun {
+                first: pairs,
+                background,
+                gain,
+                fixed,
+                lanes,
+                admit,
+                hint,
+                base,
+                max_raw,
+            };
+            let mut ends = TierEnds {
+                front_end,
+                back_start,
+            };
+            // SAFETY: room for every pixel is proved (`!ROOM`); the words'
+            // pixels are at offsets `pairs .. pairs + 2 words.len()` of the
+            // segment, within the maps.
+            let bad = unsafe { admit_words::<S, CHECK>(words, &run, &mut ends) };
+            (front_end, back_start) = (ends.front_end, ends.back_start);
+            if let Some(k) = bad {
+                stop = Stop::OutOfRange(k);
+                break 'scan;
+            }
+        }
+        for (k, &r) in (pairs + 2 * words.len()..).zip(tail) {
+            if r > below {
+                pixel!('scan, k, r);
+            }
+        }
+        break 'scan;
+    }
+    // SAFETY: both pointers stay within the buffer (see above).
+    unsafe {
+        filled.front = front_end.offset_from(origin) as usize;
+        filled.back = capacity - back_start.offset_from(origin) as usize;
+    }
+    stop
+}
+
+/// The ends of a window's two tiers in its candidate buffer: the front
+/// grows up from the start, the back down from the end.
+pub(super) struct TierEnds {
+    pub(super) front_end: *mut Entry,
+    pub(super) back_start: *mut Entry,
+}
+
+/// What [`admit_words`] needs besides the words, read once into registers.
+pub(super) struct WordRun<'a> {
+    /// Offset in the segment of the first word's low pixel.
+    pub(super) first: usize,
+    /// The whole segment's maps (see [`Segment`]).
+    pub(super) background: &'a [i32],
+    pub(super) gain: &'a [u16],
+    pub(super) fixed: i32,
+    /// The raw floor less one, in both 16-bit lanes.
+    pub(super) lanes: u32,
+    pub(super) admit: i32,
+    pub(super) hint: i32,
+    pub(super) base: u16,
+    pub(super) max_raw: u16,
+}
+
+/// The word loop of a run whose room is proved. Same admission as [`scan_run`]'s per-pixel path; returns the offset of a
+/// pixel above `max_raw` (`CHECK`), where it stopped.
+///
+/// # Safety
+/// The pixels of `words` are at offsets `first .. first + 2 words.len()` of
+/// the segment, within `background` (if `S::BACKGROUND`) and `gain` (if
+/// `S::GAIN`); the buffer between `front_end` and `back_start` has room for
+/// every one of them.
+#[inline(always)]
+pub(super) unsafe fn admit_words<S: Steps, const CHECK: bool>(
+    words: &[u32],
+    run: &WordRun<'_>,
+    ends: &mut TierEnds,
+) -> Option<usize> {
+    let WordRun {
+        first,
+        background,
+        gain,
+        fixed,
+        lanes,
+        admit,
+        hint,
+        base,
+        max_raw,
+    } = *run;
+    let (mut front_end, mut back_start) = (ends.front_end, ends.back_start);
+    let mut bad = None;
+    macro_rules! lane {
+        ($k:expr, $r:expr) => {{
+            let (k, r) = ($k, $r);
+            if CHECK && r > max_raw {
+                bad = Some(k);
+                break;
+            }
+            // SAFETY: k is within the maps (the caller's contract).
+            let p =
+                unsafe { calibrate::value_in_run_unchecked::<S>(r, k, background, gain, fixed) };
+            if p >= admit {
+                let entry = Entry {
+                    value: p,
+                    position: (base + k as u16) as u32,
+                };
+                // SAFETY: room is proved for every pixel (the caller's
+                // contract), and each pixel stores at most once.
+                unsafe {
+                    if p >= hint {
+                        front_end.write(entry);
+                        front_end = front_end.add(1);
+                    } else {
+                        back_start = back_start.sub(1);
+                        back_start.write(entry);
+                    }
+                }
+            }
+        }};
+    }
+    // Hosts: branch-free, as in `scan_run` (and for the same reason).
+    #[cfg(not(target_arch = "arm"))]
+    if !CHECK {
+        for (w, &word) in words.iter().enumerate() {
+            for (k, r) in [
+                (first + 2 * w, word as u16),
+                (first + 2 * w + 1, (word >> 16) as u16),
+            ] {
+                // SAFETY: k is within the maps (the caller's contract).
+                let p = unsafe {
+                    calibrate::value_in_run_unchecked::<S>(r, k, background, gain, fixed)
+                };
+                let entry = Entry {
+                    value: p,
+                    position: (base + k as u16) as u32,
+                };
+                let admitted = p >= admit;
+                let upper = p >= hint;
+                // SAFETY: room for every pixel (the caller's contract):
+                // front_end < back_start before each pixel.
+                unsafe {
+                    front_end.write(entry);
+                    back_start.sub(1).write(entry);
+                    front_end = front_end.add((admitted & upper) as usize);
+                    back_start = back_start.sub((admitted & !upper) as usize);
+                }
+            }
+        }
+        *ends = TierEnds {
+            front_end,
+            back_start,
+        };
+        return None;
+    }
+    for (w, &word) in words.iter().enumerate() {
+        let passing = prefilter::uqsub16(word, lanes);
+        if passing != 0 {
+            let k = first + 2 * w;
+            if passing & 0xffff != 0 {
+                lane!(k, word as u16);
+            }
+            if passing >> 16 != 0 {
+                lane!(k + 1, (word >> 16) as u16);
+            }
+        }
+    }
+    *ends = TierEnds {
+        front_end,
+        back_start,
+    };
+    bad
+}
