@@ -191,15 +191,28 @@ pub unsafe fn value_in_run_unchecked<S: Steps>(
     d
 }
 
-/// A run's slices of the maps (empty where a map is absent) and the fixed
-/// threshold (`i32::MIN` if absent), for [`value_in_run`].
+/// A run's slices of the maps `S` uses (empty where a step is absent) and
+/// the fixed threshold (`i32::MIN` if absent), for [`value_in_run`]. The
+/// steps in `S` must be those `c` has.
 #[inline(always)]
-pub fn run_maps<'a>(c: &Calibration<'a>, pixel: usize, len: usize) -> (&'a [i32], &'a [u16], i32) {
-    (
-        c.background.map_or(&[][..], |b| &b[pixel..pixel + len]),
-        c.gain.map_or(&[][..], |g| &g[pixel..pixel + len]),
-        c.threshold.unwrap_or(i32::MIN),
-    )
+pub fn run_maps<'a, S: Steps>(
+    c: &Calibration<'a>,
+    pixel: usize,
+    len: usize,
+) -> (&'a [i32], &'a [u16], i32) {
+    let background = match c.background {
+        Some(b) if S::BACKGROUND => &b[pixel..pixel + len],
+        _ => &[][..],
+    };
+    let gain = match c.gain {
+        Some(g) if S::GAIN => &g[pixel..pixel + len],
+        _ => &[][..],
+    };
+    let threshold = match c.threshold {
+        Some(t) if S::THRESHOLD => t,
+        _ => i32::MIN,
+    };
+    (background, gain, threshold)
 }
 
 /// What the pre-filter needs to know of a window's calibration maps.

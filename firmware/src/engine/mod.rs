@@ -4,7 +4,8 @@
 //!
 //! 1. [`stream`]: camera rows arrive in raster order, in chunks of any size;
 //!    each run of pixels is routed to the windows it belongs to, where the
-//!    [`prefilter`] rejects most of them on their raw values;
+//!    [`prefilter`] rejects most of them on their raw values, and [`scan`]
+//!    admits the rest into the window's candidates;
 //! 2. [`calibrate`]: background, gain and threshold (SPEC.md §2), only for
 //!    the pixels that can matter;
 //! 3. [`select`]: the N brightest pixels with exact ties (SPEC.md §3) from a
@@ -14,7 +15,8 @@
 //!    as a window's last pixel has arrived.
 //!
 //! [`window`] holds the state of open windows and of sub-apertures between
-//! frames, [`memory`] the caller-provided storage and its budget. The engine
+//! frames, [`memory`] the caller-provided storage and its budget, `plan` the
+//! sizing of an engine for a configuration. The engine
 //! knows nothing of boards, transports or files.
 
 pub mod calibrate;
@@ -23,7 +25,7 @@ pub mod level_filter;
 pub mod memory;
 mod plan;
 pub mod prefilter;
-mod scan;
+pub mod scan;
 pub mod seed;
 pub mod select;
 pub mod stream;

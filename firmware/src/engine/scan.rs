@@ -289,28 +289,53 @@ pub(super) fn scan_run<S: Steps, const CHECK: bool, const ROOM: bool>(
 
 /// The ends of a window's two tiers in its candidate buffer: the front
 /// grows up from the start, the back down from the end.
-pub(super) struct TierEnds {
-    pub(super) front_end: *mut Entry,
-    pub(super) back_start: *mut Entry,
+pub struct TierEnds {
+    pub front_end: *mut Entry,
+    pub back_start: *mut Entry,
 }
 
 /// What [`admit_words`] needs besides the words, read once into registers.
-pub(super) struct WordRun<'a> {
+pub struct WordRun<'a> {
     /// Offset in the segment of the first word's low pixel.
-    pub(super) first: usize,
+    pub first: usize,
     /// The whole segment's maps (see [`Segment`]).
-    pub(super) background: &'a [i32],
-    pub(super) gain: &'a [u16],
-    pub(super) fixed: i32,
+    pub background: &'a [i32],
+    pub gain: &'a [u16],
+    pub fixed: i32,
     /// The raw floor less one, in both 16-bit lanes.
-    pub(super) lanes: u32,
-    pub(super) admit: i32,
-    pub(super) hint: i32,
-    pub(super) base: u16,
-    pub(super) max_raw: u16,
+    pub lanes: u32,
+    pub admit: i32,
+    pub hint: i32,
+    pub base: u16,
+    pub max_raw: u16,
 }
 
-/// The word loop of a run whose room is proved. Same admission as [`scan_run`]'s per-pixel path; returns the offset of a
+/// The word loop of a run whose room is proved: [`admit_words_portable`],
+/// or on Cortex-M for the usual calibration (a background map, no gain, no
+/// fixed threshold) and 16-bit pixels its twin in assembly
+/// (`dsp::admit_words_background`), which the benchmark's self-test checks
+/// against it in QEMU.
+///
+/// # Safety
+/// As [`admit_words_portable`].
+#[inline(always)]
+pub unsafe fn admit_words<S: Steps, const CHECK: bool>(
+    words: &[u32],
+    run: &WordRun<'_>,
+    ends: &mut TierEnds,
+) -> Option<usize> {
+    #[cfg(target_arch = "arm")]
+    if !CHECK && S::BACKGROUND && !S::GAIN && !S::THRESHOLD {
+        // SAFETY: the caller's contract; `background` covers the words'
+        // pixels (S::BACKGROUND).
+        unsafe { dsp::admit_words_background(words, run, ends) };
+        return None;
+    }
+    // SAFETY: the caller's contract.
+    unsafe { admit_words_portable::<S, CHECK>(words, run, ends) }
+}
+
+/// The definition of [`admit_words`]. Same admission as [`scan_run`]'s per-pixel path; returns the offset of a
 /// pixel above `max_raw` (`CHECK`), where it stopped.
 ///
 /// # Safety
@@ -319,7 +344,7 @@ pub(super) struct WordRun<'a> {
 /// `S::GAIN`); the buffer between `front_end` and `back_start` has room for
 /// every one of them.
 #[inline(always)]
-pub(super) unsafe fn admit_words<S: Steps, const CHECK: bool>(
+pub unsafe fn admit_words_portable<S: Steps, const CHECK: bool>(
     words: &[u32],
     run: &WordRun<'_>,
     ends: &mut TierEnds,
@@ -417,4 +442,103 @@ pub(super) unsafe fn admit_words<S: Steps, const CHECK: bool>(
         back_start,
     };
     bad
+}
+
+#[cfg(target_arch = "arm")]
+mod dsp {
+    use super::{TierEnds, WordRun};
+
+    /// [`super::admit_words_portable`] for a background map without gain or
+    /// fixed threshold, 16-bit pixels (no range check): a word whose two
+    /// pixels are below the floor costs five instructions (`LDR`,
+    /// `UQSUB16`, `CBNZ`, `CMP`, `BNE`), an admitted pixel about fifteen,
+    /// with no register spilled.
+    ///
+    /// Positions and background addresses are derived from the word
+    /// pointer: after `LDR w, [p], #4` the word's low pixel has background
+    /// at `2 p + D` and position `p / 2 + C` (`D`, `C` fixed for the run,
+    /// in wrapping arithmetic; the run is word-aligned, so `p / 2` is
+    /// exact).
+    ///
+    /// # Safety
+    /// As [`super::admit_words_portable`], and `run.background` covers the
+    /// words' pixels.
+    #[inline(always)]
+    pub unsafe fn admit_words_background(words: &[u32], run: &WordRun<'_>, ends: &mut TierEnds) {
+        let start = words.as_ptr() as usize;
+        let end = start + 4 * words.len();
+        let background = run.background.as_ptr() as usize + 4 * run.first;
+        let d = background.wrapping_sub(2 * start).wrapping_sub(8);
+        let c = (run.base as usize + run.first)
+            .wrapping_sub(start >> 1)
+            .wrapping_sub(2);
+        let thresholds = [run.admit, run.hint];
+        // SAFETY: reads the words and their background values only; each
+        // admitted pixel is stored once, at the front's end or below the
+        // back's start, where the caller proved room. r0 is clobbered.
+        unsafe {
+            core::arch::asm!(
+                "cmp {p}, {end}",
+                "beq 9f",
+                "1:",
+                "ldr {w}, [{p}], #4",
+                "uqsub16 r0, {w}, {lanes}",
+                "cbnz r0, 3f",
+                "2:",
+                "cmp {p}, {end}",
+                "bne 1b",
+                "b 9f",
+                // The low pixel.
+                "3:",
+                "lsls {v}, r0, #16",
+                "beq 5f",
+                "uxth {v}, {w}",
+                "add {t}, {d}, {p}, lsl #1",
+                "ldr {t}, [{t}]",
+                "rsb {v}, {t}, {v}, lsl #4",
+                "ldr {t}, [{k}]",
+                "cmp {v}, {t}",
+                "blt 5f",
+                "ldr {t}, [{k}, #4]",
+                "cmp {v}, {t}",
+                "add {t}, {c}, {p}, lsr #1",
+                "ite ge",
+                "strdge {v}, {t}, [{fe}], #8",
+                "strdlt {v}, {t}, [{bs}, #-8]!",
+                // The high pixel.
+                "5:",
+                "cmp r0, #0x10000",
+                "blo 2b",
+                "lsrs {v}, {w}, #16",
+                "add {t}, {d}, {p}, lsl #1",
+                "ldr {t}, [{t}, #4]",
+                "rsb {v}, {t}, {v}, lsl #4",
+                "ldr {t}, [{k}]",
+                "cmp {v}, {t}",
+                "blt 2b",
+                "ldr {t}, [{k}, #4]",
+                "cmp {v}, {t}",
+                "add {t}, {c}, {p}, lsr #1",
+                "add {t}, {t}, #1",
+                "ite ge",
+                "strdge {v}, {t}, [{fe}], #8",
+                "strdlt {v}, {t}, [{bs}, #-8]!",
+                "b 2b",
+                "9:",
+                p = inout(reg) start => _,
+                end = in(reg) end,
+                lanes = in(reg) run.lanes,
+                d = in(reg) d,
+                c = in(reg) c,
+                k = in(reg) thresholds.as_ptr(),
+                fe = inout(reg) ends.front_end,
+                bs = inout(reg) ends.back_start,
+                w = out(reg) _,
+                v = out(reg) _,
+                t = out(reg) _,
+                out("r0") _,
+                options(nostack),
+            );
+        }
+    }
 }

@@ -477,7 +477,7 @@ impl<'c, 'm> Engine<'c, 'm> {
             };
         }
         let (background, gain, fixed) =
-            calibrate::run_maps(&self.config.calibration, pixel, raw.len());
+            calibrate::run_maps::<S>(&self.config.calibration, pixel, raw.len());
         let base = window.slot as usize * self.stride;
         let capacity = window.capacity as usize;
         let entries = &mut memory.entries[base..base + capacity];
@@ -546,7 +546,7 @@ impl<'c, 'm> Engine<'c, 'm> {
             return self.segment_rest::<S, CHECK>(slot, raw, pixel, i0, j);
         }
         let (background, gain, fixed) =
-            calibrate::run_maps(&self.config.calibration, pixel, raw.len());
+            calibrate::run_maps::<S>(&self.config.calibration, pixel, raw.len());
         let memory = &mut self.memory;
         let window = &mut memory.open[slot];
         let base = window.slot as usize * self.stride;
