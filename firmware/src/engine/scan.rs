@@ -312,7 +312,7 @@ pub struct WordRun<'a> {
 
 /// The word loop of a run whose room is proved: [`admit_words_portable`],
 /// or on Cortex-M for the usual calibration (a background map, no gain, no
-/// fixed threshold) and 16-bit pixels its twin in assembly
+/// fixed threshold) its twin in assembly
 /// (`dsp::admit_words_background`), which the benchmark's self-test checks
 /// against it in QEMU.
 ///
@@ -325,11 +325,10 @@ pub unsafe fn admit_words<S: Steps, const CHECK: bool>(
     ends: &mut TierEnds,
 ) -> Option<usize> {
     #[cfg(target_arch = "arm")]
-    if !CHECK && S::BACKGROUND && !S::GAIN && !S::THRESHOLD {
+    if S::BACKGROUND && !S::GAIN && !S::THRESHOLD {
         // SAFETY: the caller's contract; `background` covers the words'
         // pixels (S::BACKGROUND).
-        unsafe { dsp::admit_words_background(words, run, ends) };
-        return None;
+        return unsafe { dsp::admit_words_background::<CHECK>(words, run, ends) };
     }
     // SAFETY: the caller's contract.
     unsafe { admit_words_portable::<S, CHECK>(words, run, ends) }
@@ -448,36 +447,27 @@ pub unsafe fn admit_words_portable<S: Steps, const CHECK: bool>(
 mod dsp {
     use super::{TierEnds, WordRun};
 
-    /// [`super::admit_words_portable`] for a background map without gain or
-    /// fixed threshold, 16-bit pixels (no range check): a word whose two
-    /// pixels are below the floor costs five instructions (`LDR`,
-    /// `UQSUB16`, `CBNZ`, `CMP`, `BNE`), an admitted pixel about fifteen,
-    /// with no register spilled.
-    ///
-    /// Positions and background addresses are derived from the word
-    /// pointer: after `LDR w, [p], #4` the word's low pixel has background
-    /// at `2 p + D` and position `p / 2 + C` (`D`, `C` fixed for the run,
-    /// in wrapping arithmetic; the run is word-aligned, so `p / 2` is
-    /// exact).
-    ///
-    /// # Safety
-    /// As [`super::admit_words_portable`], and `run.background` covers the
-    /// words' pixels.
-    #[inline(always)]
-    pub unsafe fn admit_words_background(words: &[u32], run: &WordRun<'_>, ends: &mut TierEnds) {
-        let start = words.as_ptr() as usize;
-        let end = start + 4 * words.len();
-        let background = run.background.as_ptr() as usize + 4 * run.first;
-        let d = background.wrapping_sub(2 * start).wrapping_sub(8);
-        let c = (run.base as usize + run.first)
-            .wrapping_sub(start >> 1)
-            .wrapping_sub(2);
-        let thresholds = [run.admit, run.hint];
-        // SAFETY: reads the words and their background values only; each
-        // admitted pixel is stored once, at the front's end or below the
-        // back's start, where the caller proved room. r0 is clobbered.
-        unsafe {
+    /// The range check of one pixel in `v`, when `$check`: branches to
+    /// `$out` if it is above `max_raw` (the third word at `k`).
+    macro_rules! range_check {
+        (true, $out:literal) => {
+            concat!("ldr {t}, [{k}, #8]\n", "cmp {v}, {t}\n", "bhi ", $out, "\n")
+        };
+        (false, $out:literal) => {
+            ""
+        };
+    }
+
+    /// The loop of [`admit_words_background`], with or without the range
+    /// check of each pixel the pre-filter lets through (a pixel above the
+    /// bit depth always passes it, see `OpenWindow::floor`). On a pixel out
+    /// of range, leaves its position in `w` and stops; else `w` is
+    /// `u32::MAX`.
+    macro_rules! admit_loop {
+        ($check:tt, $p:expr, $end:expr, $lanes:expr, $d:expr, $c:expr, $k:expr, $fe:expr, $bs:expr) => {{
+            let w: u32;
             core::arch::asm!(
+                "mov {w}, #-1",
                 "cmp {p}, {end}",
                 "beq 9f",
                 "1:",
@@ -487,12 +477,14 @@ mod dsp {
                 "2:",
                 "cmp {p}, {end}",
                 "bne 1b",
+                "mov {w}, #-1",
                 "b 9f",
                 // The low pixel.
                 "3:",
                 "lsls {v}, r0, #16",
                 "beq 5f",
                 "uxth {v}, {w}",
+                range_check!($check, "6f"),
                 "add {t}, {d}, {p}, lsl #1",
                 "ldr {t}, [{t}]",
                 "rsb {v}, {t}, {v}, lsl #4",
@@ -510,6 +502,7 @@ mod dsp {
                 "cmp r0, #0x10000",
                 "blo 2b",
                 "lsrs {v}, {w}, #16",
+                range_check!($check, "7f"),
                 "add {t}, {d}, {p}, lsl #1",
                 "ldr {t}, [{t}, #4]",
                 "rsb {v}, {t}, {v}, lsl #4",
@@ -524,21 +517,95 @@ mod dsp {
                 "strdge {v}, {t}, [{fe}], #8",
                 "strdlt {v}, {t}, [{bs}, #-8]!",
                 "b 2b",
+                // Out of range: the position of the low or the high pixel.
+                "6:",
+                "add {w}, {c}, {p}, lsr #1",
+                "b 9f",
+                "7:",
+                "add {w}, {c}, {p}, lsr #1",
+                "add {w}, {w}, #1",
                 "9:",
-                p = inout(reg) start => _,
-                end = in(reg) end,
-                lanes = in(reg) run.lanes,
-                d = in(reg) d,
-                c = in(reg) c,
-                k = in(reg) thresholds.as_ptr(),
-                fe = inout(reg) ends.front_end,
-                bs = inout(reg) ends.back_start,
-                w = out(reg) _,
+                p = inout(reg) $p => _,
+                end = in(reg) $end,
+                lanes = in(reg) $lanes,
+                d = in(reg) $d,
+                c = in(reg) $c,
+                k = in(reg) $k,
+                fe = inout(reg) $fe,
+                bs = inout(reg) $bs,
+                w = out(reg) w,
                 v = out(reg) _,
                 t = out(reg) _,
                 out("r0") _,
                 options(nostack),
             );
-        }
+            w
+        }};
+    }
+
+    /// [`super::admit_words_portable`] for a background map without gain or
+    /// fixed threshold: a word whose two pixels are below the floor costs
+    /// five instructions (`LDR`, `UQSUB16`, `CBNZ`, `CMP`, `BNE`), an
+    /// admitted pixel about fifteen (three more with `CHECK`), with no
+    /// register spilled. Returns the offset of a pixel above `max_raw`
+    /// (`CHECK`), where it stopped.
+    ///
+    /// Positions and background addresses are derived from the word
+    /// pointer: after `LDR w, [p], #4` the word's low pixel has background
+    /// at `2 p + D` and position `p / 2 + C` (`D`, `C` fixed for the run,
+    /// in wrapping arithmetic; the run is word-aligned, so `p / 2` is
+    /// exact).
+    ///
+    /// # Safety
+    /// As [`super::admit_words_portable`], and `run.background` covers the
+    /// words' pixels.
+    #[inline(always)]
+    pub unsafe fn admit_words_background<const CHECK: bool>(
+        words: &[u32],
+        run: &WordRun<'_>,
+        ends: &mut TierEnds,
+    ) -> Option<usize> {
+        let start = words.as_ptr() as usize;
+        let end = start + 4 * words.len();
+        let background = run.background.as_ptr() as usize + 4 * run.first;
+        let d = background.wrapping_sub(2 * start).wrapping_sub(8);
+        let c = (run.base as usize + run.first)
+            .wrapping_sub(start >> 1)
+            .wrapping_sub(2);
+        let constants = [run.admit, run.hint, run.max_raw as i32];
+        let k = constants.as_ptr();
+        // SAFETY: reads the words, their background values and `constants`
+        // only; each admitted pixel is stored once, at the front's end or
+        // below the back's start, where the caller proved room. r0 is
+        // clobbered.
+        let stopped = unsafe {
+            if CHECK {
+                admit_loop!(
+                    true,
+                    start,
+                    end,
+                    run.lanes,
+                    d,
+                    c,
+                    k,
+                    ends.front_end,
+                    ends.back_start
+                )
+            } else {
+                admit_loop!(
+                    false,
+                    start,
+                    end,
+                    run.lanes,
+                    d,
+                    c,
+                    k,
+                    ends.front_end,
+                    ends.back_start
+                )
+            }
+        };
+        // A position is base + offset, below 2^16.
+        (stopped != u32::MAX).then(|| stopped as usize - run.base as usize)
     }
 }
