@@ -179,9 +179,25 @@ pub fn stream_and_verify(
     first_frame: u32,
     keep: usize,
 ) -> VerifiedStream {
+    stream_and_verify_with(client, config, frames, first_frame, keep, || {})
+}
+
+/// [`stream_and_verify`], calling `on_outcome` as each frame's outcome
+/// arrives (a progress bar, for instance).
+pub fn stream_and_verify_with(
+    client: &mut Client,
+    config: &Config<'_>,
+    frames: &[Vec<u16>],
+    first_frame: u32,
+    keep: usize,
+    mut on_outcome: impl FnMut(),
+) -> VerifiedStream {
     let mut verifier = Verifier::new(config, keep).expect("the configuration was accepted");
     let mut outcomes = Vec::with_capacity(frames.len());
-    let result = client.stream_frames(first_frame, frames, |o| outcomes.push(o));
+    let result = client.stream_frames(first_frame, frames, |o| {
+        outcomes.push(o);
+        on_outcome();
+    });
     verify_outcomes(&mut verifier, frames, first_frame, &outcomes);
     let (report, error) = match result {
         Ok(report) => (report, None),

@@ -40,7 +40,7 @@ pub struct BenchArgs {
     #[arg(long, value_name = "C.toml")]
     config: Option<PathBuf>,
     /// With --config: frames to measure on (.npy or FITS cube); default: simulated spots.
-    #[arg(long, value_name = "F.npy|F.fits", requires = "config")]
+    #[arg(long, value_name = "PATH", requires = "config")]
     frames: Option<PathBuf>,
     /// With --config: the board's clock, MHz, for its pixel rate and latency.
     #[arg(long, default_value_t = 480.0, value_name = "MHZ")]

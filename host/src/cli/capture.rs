@@ -133,8 +133,10 @@ pub fn run(args: CaptureArgs) -> Result<()> {
     );
     let mut results = Results::new(n);
     let mut dropped = 0;
+    let mut invalid = super::all_invalid::InvalidFrames::default();
     for o in &outcomes {
         dropped += usize::from(!matches!(o, FrameOutcome::Done(_)));
+        invalid.outcome(o, n);
         for s in o.slopes().by_index(n) {
             results.push(s.map(|s| Raw {
                 slope_x: s.slope_x,
@@ -167,6 +169,7 @@ pub fn run(args: CaptureArgs) -> Result<()> {
             .map(|p| format!("; written to {}", p.display()))
             .unwrap_or_default()
     );
+    invalid.warn();
     if let (Some(verifier), Some(config)) = (&mut verifier, &config) {
         let last = outcomes
             .iter()

@@ -9,7 +9,7 @@ use brightpix_protocol::wire::Status;
 use clap::Args;
 
 use crate::link::{Client, PixelSink};
-use crate::sil::{canary_config, canary_frames, stream_and_verify};
+use crate::sil::{canary_config, canary_frames, stream_and_verify_with};
 use crate::sim_device::{InProcessDevice, QemuDevice, QemuOptions};
 
 #[derive(Args)]
@@ -94,7 +94,11 @@ pub fn run(args: DemoArgs) -> Result<()> {
         client.set_pixel_sink(PixelSink::Fifo(fifo));
     }
     eprintln!("brightpix demo: streaming...");
-    let run = stream_and_verify(&mut client, &view, &frames, 0, args.show);
+    let progress = super::progress::Progress::new(frames.len() as u64, "frames");
+    let run = stream_and_verify_with(&mut client, &view, &frames, 0, args.show, || {
+        progress.inc(1)
+    });
+    progress.finish();
     let status = client.status();
     let mut firmware_exit = None;
     let mut device = device;

@@ -38,7 +38,7 @@ pub struct StreamArgs {
     config: PathBuf,
     /// Frames: .npy (uint8/uint16, shape (frames, height, width)) or FITS cube (the first HDU
     /// holding an image, tile-compressed included; BSCALE/BZERO applied).
-    #[arg(long)]
+    #[arg(long, value_name = "PATH")]
     frames: PathBuf,
     /// FITS HDU of the frames: an index (0: primary) or EXTNAME (default: the first image).
     #[arg(long, value_name = "HDU")]
