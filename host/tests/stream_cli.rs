@@ -169,6 +169,10 @@ fn stream_out_has_flux_validity_and_provenance_in_every_format() {
                 assert_eq!(rule, "subtract-next");
                 let slopes: Vec<f64> = primary.read_image(&mut file).unwrap();
                 assert_eq!(slopes, brightpix::io::read_array(&reference).unwrap().data);
+                // Found by name as process's SLOPES extension is.
+                let named = file.hdu("SLOPES").unwrap();
+                let slopes: Vec<f64> = named.read_image(&mut file).unwrap();
+                assert_eq!(slopes, brightpix::io::read_array(&reference).unwrap().data);
                 let hdu = file.hdu("FLUX").unwrap();
                 let flux: Vec<f64> = hdu.read_image(&mut file).unwrap();
                 assert_eq!(flux, want_flux.data);

@@ -80,6 +80,15 @@ pub(crate) fn add_to_streamed(
     let e = |err| fits_error(path, err);
     let mut file = FitsFile::edit(path).map_err(e)?;
     let primary = file.primary_hdu().map_err(e)?;
+    // Named as `process` names its slopes, so that `hdul["SLOPES"]`
+    // (astropy) or `--hdu SLOPES` reads either file.
+    primary
+        .write_key(
+            &mut file,
+            "EXTNAME",
+            ("SLOPES", "the slopes, appended as frames arrived"),
+        )
+        .map_err(e)?;
     primary
         .write_key(&mut file, "BUNIT", ("pixel", "unit of the slopes"))
         .map_err(e)?;
