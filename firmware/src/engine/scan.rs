@@ -4,6 +4,11 @@
 //! Pixels are read two at a time as a word; one `UQSUB16` against the
 //! window's raw floor in both lanes tells whether either can reach the
 //! admission threshold (`prefilter.rs`), and only those are calibrated.
+//!
+//! [`admit_words`] is the loop most of the engine's time goes to: on
+//! Cortex-M, for a background map, it is assembly (`dsp`), whose portable
+//! twin [`admit_words_portable`] the QEMU benchmark's self-test compares it
+//! with on random runs; both are public only for that test.
 
 use super::calibrate::{self, Steps};
 use super::prefilter;
