@@ -148,8 +148,12 @@ pub(super) fn scan_run<S: Steps, const CHECK: bool, const ROOM: bool>(
     // where room was proved: for the whole run by the caller (`!ROOM`,
     // capacity - front - back >= raw.len() and each pixel stores at most
     // once) or just before it (`ROOM`).
-    let mut front_end = unsafe { origin.add(filled.front) };
-    let mut back_start = unsafe { origin.add(capacity - filled.back) };
+    let mut ends = unsafe {
+        TierEnds {
+            front_end: origin.add(filled.front),
+            back_start: origin.add(capacity - filled.back),
+        }
+    };
     let mut stop = Stop::End;
     // One pixel: r at offset k of the segment (k < end, within the maps).
     macro_rules! pixel {
@@ -168,20 +172,12 @@ pub(super) fn scan_run<S: Steps, const CHECK: bool, const ROOM: bool>(
                     value: p,
                     position: (base + k as u16) as u32,
                 };
-                if ROOM && front_end == back_start {
+                if ROOM && ends.front_end == ends.back_start {
                     stop = Stop::Full { k, entry };
                     break $out;
                 }
                 // SAFETY: see above.
-                unsafe {
-                    if p >= hint {
-                        front_end.write(entry);
-                        front_end = front_end.add(1);
-                    } else {
-                        back_start = back_start.sub(1);
-                        back_start.write(entry);
-                    }
-                }
+                unsafe { ends.put(entry, hint) };
             }
         }};
     }
@@ -195,37 +191,6 @@ pub(super) fn scan_run<S: Steps, const CHECK: bool, const ROOM: bool>(
         }
         // floor <= 2^16 - 1 here: a floor of 2^16 skips the segment.
         let below = (floor - 1) as u16;
-        // Hosts: where room for every pixel is proved and no pixel needs a
-        // range check, branch-free (the branches of a hot segment are
-        // taken at random, which costs a superscalar core more than doing
-        // every pixel): each pixel is written at both tiers' free ends and
-        // kept by advancing the end of the tier it belongs to. Room holds:
-        // before each pixel the free gap is at least one entry, and where
-        // the two writes meet they write the same entry.
-        #[cfg(not(target_arch = "arm"))]
-        if !ROOM && !CHECK {
-            for (k, &r) in raw.iter().enumerate() {
-                let k = start + k;
-                // SAFETY: k < start + raw.len() <= the maps' lengths.
-                let p = unsafe {
-                    calibrate::value_in_run_unchecked::<S>(r, k, background, gain, fixed)
-                };
-                let entry = Entry {
-                    value: p,
-                    position: (base + k as u16) as u32,
-                };
-                let admitted = p >= admit;
-                let upper = p >= hint;
-                // SAFETY: front_end < back_start (see above).
-                unsafe {
-                    front_end.write(entry);
-                    back_start.sub(1).write(entry);
-                    front_end = front_end.add((admitted & upper) as usize);
-                    back_start = back_start.sub((admitted & !upper) as usize);
-                }
-            }
-            break 'scan;
-        }
         let lanes = below as u32 * 0x0001_0001;
         // SAFETY: any pair of u16 is a valid u32; align_to only splits the
         // slice where the words are aligned.
@@ -263,15 +228,10 @@ pub(super) fn scan_run<S: Steps, const CHECK: bool, const ROOM: bool>(
                 base,
                 max_raw,
             };
-            let mut ends = TierEnds {
-                front_end,
-                back_start,
-            };
             // SAFETY: room for every pixel is proved (`!ROOM`); the words'
             // pixels are at offsets `pairs .. pairs + 2 words.len()` of the
             // segment, within the maps.
             let bad = unsafe { admit_words::<S, CHECK>(words, &run, &mut ends) };
-            (front_end, back_start) = (ends.front_end, ends.back_start);
             if let Some(k) = bad {
                 stop = Stop::OutOfRange(k);
                 break 'scan;
@@ -286,8 +246,8 @@ pub(super) fn scan_run<S: Steps, const CHECK: bool, const ROOM: bool>(
     }
     // SAFETY: both pointers stay within the buffer (see above).
     unsafe {
-        filled.front = front_end.offset_from(origin) as usize;
-        filled.back = capacity - back_start.offset_from(origin) as usize;
+        filled.front = ends.front_end.offset_from(origin) as usize;
+        filled.back = capacity - ends.back_start.offset_from(origin) as usize;
     }
     stop
 }
@@ -297,6 +257,46 @@ pub(super) fn scan_run<S: Steps, const CHECK: bool, const ROOM: bool>(
 pub struct TierEnds {
     pub front_end: *mut Entry,
     pub back_start: *mut Entry,
+}
+
+impl TierEnds {
+    /// Puts an admitted candidate at the end of its tier: the front if it is
+    /// at or above the hint, else the back.
+    ///
+    /// # Safety
+    /// Room for one entry between the two ends.
+    #[inline(always)]
+    unsafe fn put(&mut self, entry: Entry, hint: i32) {
+        // SAFETY: the caller's contract.
+        unsafe {
+            if entry.value >= hint {
+                self.front_end.write(entry);
+                self.front_end = self.front_end.add(1);
+            } else {
+                self.back_start = self.back_start.sub(1);
+                self.back_start.write(entry);
+            }
+        }
+    }
+
+    /// [`put`](Self::put) without a branch, for any candidate: it is
+    /// written at both free ends and kept by advancing the end of its tier
+    /// if `admitted`. Where the two writes meet they write the same entry.
+    ///
+    /// # Safety
+    /// Room for one entry between the two ends.
+    #[cfg(not(target_arch = "arm"))]
+    #[inline(always)]
+    unsafe fn put_branch_free(&mut self, entry: Entry, admitted: bool, hint: i32) {
+        let upper = entry.value >= hint;
+        // SAFETY: the caller's contract.
+        unsafe {
+            self.front_end.write(entry);
+            self.back_start.sub(1).write(entry);
+            self.front_end = self.front_end.add((admitted & upper) as usize);
+            self.back_start = self.back_start.sub((admitted & !upper) as usize);
+        }
+    }
 }
 
 /// What [`admit_words`] needs besides the words, read once into registers.
@@ -364,7 +364,6 @@ pub unsafe fn admit_words_portable<S: Steps, const CHECK: bool>(
         base,
         max_raw,
     } = *run;
-    let (mut front_end, mut back_start) = (ends.front_end, ends.back_start);
     let mut bad = None;
     macro_rules! lane {
         ($k:expr, $r:expr) => {{
@@ -383,19 +382,13 @@ pub unsafe fn admit_words_portable<S: Steps, const CHECK: bool>(
                 };
                 // SAFETY: room is proved for every pixel (the caller's
                 // contract), and each pixel stores at most once.
-                unsafe {
-                    if p >= hint {
-                        front_end.write(entry);
-                        front_end = front_end.add(1);
-                    } else {
-                        back_start = back_start.sub(1);
-                        back_start.write(entry);
-                    }
-                }
+                unsafe { ends.put(entry, hint) };
             }
         }};
     }
-    // Hosts: branch-free, as in `scan_run` (and for the same reason).
+    // Hosts: branch-free, every pixel (the branches of a hot segment are
+    // taken at random, which costs a superscalar core more than doing every
+    // pixel).
     #[cfg(not(target_arch = "arm"))]
     if !CHECK {
         for (w, &word) in words.iter().enumerate() {
@@ -411,22 +404,10 @@ pub unsafe fn admit_words_portable<S: Steps, const CHECK: bool>(
                     value: p,
                     position: (base + k as u16) as u32,
                 };
-                let admitted = p >= admit;
-                let upper = p >= hint;
-                // SAFETY: room for every pixel (the caller's contract):
-                // front_end < back_start before each pixel.
-                unsafe {
-                    front_end.write(entry);
-                    back_start.sub(1).write(entry);
-                    front_end = front_end.add((admitted & upper) as usize);
-                    back_start = back_start.sub((admitted & !upper) as usize);
-                }
+                // SAFETY: room for every pixel (the caller's contract).
+                unsafe { ends.put_branch_free(entry, p >= admit, hint) };
             }
         }
-        *ends = TierEnds {
-            front_end,
-            back_start,
-        };
         return None;
     }
     for (w, &word) in words.iter().enumerate() {
@@ -441,10 +422,6 @@ pub unsafe fn admit_words_portable<S: Steps, const CHECK: bool>(
             }
         }
     }
-    *ends = TierEnds {
-        front_end,
-        back_start,
-    };
     bad
 }
 
