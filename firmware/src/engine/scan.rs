@@ -57,9 +57,7 @@ pub(super) fn scan<S: Steps, const CHECK: bool>(
         start,
         background,
         gain,
-        fixed,
-        base,
-        max_raw,
+        ..
     } = *segment;
     let capacity = entries.len();
     let hint = window.hint;
@@ -79,37 +77,12 @@ pub(super) fn scan<S: Steps, const CHECK: bool>(
         back,
         capacity,
     };
+    let admission = Admission { floor, admit, hint };
     let stop = if capacity - front - back >= raw.len() {
         // Room for every pixel of the run: no check of room per pixel.
-        scan_run::<S, CHECK, false>(
-            raw,
-            start,
-            floor,
-            admit,
-            hint,
-            background,
-            gain,
-            fixed,
-            base,
-            max_raw,
-            entries,
-            &mut filled,
-        )
+        scan_run::<S, CHECK, false>(segment, admission, entries, &mut filled)
     } else {
-        scan_run::<S, CHECK, true>(
-            raw,
-            start,
-            floor,
-            admit,
-            hint,
-            background,
-            gain,
-            fixed,
-            base,
-            max_raw,
-            entries,
-            &mut filled,
-        )
+        scan_run::<S, CHECK, true>(segment, admission, entries, &mut filled)
     };
     window.front = filled.front as u16;
     window.back = filled.back as u16;
@@ -123,23 +96,33 @@ pub(super) struct Tiers2 {
     pub(super) capacity: usize,
 }
 
+/// A window's admission for one run: the raw floor of its pre-filter, the
+/// calibrated threshold, and the hint that splits front from back.
+#[derive(Clone, Copy)]
+pub(super) struct Admission {
+    pub(super) floor: u32,
+    pub(super) admit: i32,
+    pub(super) hint: i32,
+}
+
 /// The pixel loop of [`scan`]; `ROOM`: check for room before each store.
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub(super) fn scan_run<S: Steps, const CHECK: bool, const ROOM: bool>(
-    raw: &[u16],
-    start: usize,
-    floor: u32,
-    admit: i32,
-    hint: i32,
-    background: &[i32],
-    gain: &[u16],
-    fixed: i32,
-    base: u16,
-    max_raw: u16,
+    segment: &Segment<'_>,
+    admission: Admission,
     entries: &mut [Entry],
     filled: &mut Tiers2,
 ) -> Stop {
+    let Segment {
+        raw,
+        start,
+        background,
+        gain,
+        fixed,
+        base,
+        max_raw,
+    } = *segment;
+    let Admission { floor, admit, hint } = admission;
     let capacity = filled.capacity;
     debug_assert!(capacity <= entries.len());
     let origin = entries.as_mut_ptr();
