@@ -4,6 +4,9 @@
 //! received when it is interrupted or killed, and says how many the file
 //! holds; summaries count what the file holds.
 
+mod common;
+use common::{brightpix, run};
+
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -13,10 +16,7 @@ use brightpix::io::{read_array, write_array};
 use brightpix::sim_device::InProcessDevice;
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("brightpix-outputs-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    common::scratch("outputs", name)
 }
 
 /// A 16x16 camera with four 8x8 sub-apertures, and `count` frames.
@@ -41,17 +41,6 @@ fn small_case(dir: &Path, count: usize) -> (PathBuf, PathBuf) {
     let frames = dir.join("frames.npy");
     write_array(&frames, &[count, 16, 16], &pixels).unwrap();
     (config, frames)
-}
-
-fn brightpix() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_brightpix"))
-}
-
-fn run(args: &[&str]) -> (bool, String) {
-    let out = brightpix().args(args).output().unwrap();
-    let text =
-        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
-    (out.status.success(), text)
 }
 
 /// Fault 3: `process --out` equal to the frames replaced them with slopes.

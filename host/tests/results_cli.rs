@@ -3,18 +3,17 @@
 //! cfitsio), CSV rows, and the AO vector layout, all carrying the same
 //! numbers as the reference computes.
 
+mod common;
+use common::run;
+
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use brightpix::config_file::ProcessingConfig;
 use brightpix::io::{read_array, write_array};
 use brightpix::reference::Reference;
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("brightpix-results-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    common::scratch("results", name)
 }
 
 /// A 16x16 camera with four 8x8 sub-apertures (the last one dark, so
@@ -45,16 +44,6 @@ fn case(dir: &Path, count: usize) -> (PathBuf, PathBuf, Vec<u16>) {
     let frames = dir.join("frames.npy");
     write_array(&frames, &[count, 16, 16], &pixels).unwrap();
     (config, frames, pixels)
-}
-
-fn run(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_brightpix"))
-        .args(args)
-        .output()
-        .unwrap();
-    let text =
-        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
-    (out.status.success(), text)
 }
 
 /// The reference's results: (slopes [x, y] px, flux counts, valid).

@@ -1,17 +1,16 @@
 //! `stream --no-configure` trusts the device's active configuration only
 //! when its digest (PROTOCOL.md §7) is that of `--config`.
 
+mod common;
+use common::run;
+
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use brightpix::io::write_array;
 use brightpix::sim_device::InProcessDevice;
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("brightpix-stream-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    common::scratch("stream", name)
 }
 
 /// A 16x16 camera with four 8x8 sub-apertures selecting `n` pixels.
@@ -36,16 +35,6 @@ fn frames(dir: &Path, count: usize) -> PathBuf {
     let path = dir.join("frames.npy");
     write_array(&path, &[count, 16, 16], &pixels).unwrap();
     path
-}
-
-fn run(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_brightpix"))
-        .args(args)
-        .output()
-        .unwrap();
-    let text =
-        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
-    (out.status.success(), text)
 }
 
 #[test]

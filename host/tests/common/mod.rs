@@ -1,0 +1,28 @@
+//! What the command-line tests share: a scratch directory per test and a
+//! way to run the `brightpix` binary under test. Each test file uses a part.
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+use std::process::Command;
+
+/// A fresh, empty `brightpix-SUITE-PID-NAME` in the system's temporary
+/// directory.
+pub fn scratch(suite: &str, name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("brightpix-{suite}-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// The `brightpix` binary under test.
+pub fn brightpix() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_brightpix"))
+}
+
+/// Runs `brightpix ARGS`: whether it succeeded, and its stdout then stderr.
+pub fn run(args: &[&str]) -> (bool, String) {
+    let out = brightpix().args(args).output().unwrap();
+    let text =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    (out.status.success(), text)
+}
