@@ -1,9 +1,10 @@
 //! The state the engine keeps for a window while it is open (from its first
 //! row to its last), and for every sub-aperture between frames.
 
-use super::calibrate::WindowBounds;
+use super::calibrate::{WindowBounds, FLOOR_NONE};
 use super::centroid::Moments;
 use super::level_filter::LevelFilterState;
+use super::prefilter;
 use super::seed::Seed;
 use super::select::Ties;
 
@@ -110,5 +111,25 @@ impl OpenWindow {
     /// Pixels in the window.
     pub(crate) fn pixels(&self) -> u16 {
         self.width * self.height
+    }
+
+    /// The calibrated value a pixel needs to become a candidate: `low`, or
+    /// just above the hint once admission is strict.
+    #[inline(always)]
+    pub(crate) fn admit(&self) -> i32 {
+        if self.strict {
+            self.hint.saturating_add(1)
+        } else {
+            self.low
+        }
+    }
+
+    /// Whether the pre-filter rejects this row segment of a selecting
+    /// window whole (`floor` is capped so that an out-of-range pixel is
+    /// never rejected; a floor of 0 lets every pixel through).
+    #[inline(always)]
+    pub(crate) fn rejects(&self, raw: &[u16]) -> bool {
+        self.floor >= FLOOR_NONE
+            || (self.floor != 0 && !prefilter::any_at_least(raw, self.floor as u16))
     }
 }
