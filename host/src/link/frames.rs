@@ -369,17 +369,18 @@ impl Client {
                 other => return Err(unexpected("Capture", &other)),
             }
             loop {
-                let next = self.wait("captured frames", |c| {
-                    if let Some(o) = c.finished.pop_front() {
-                        return Some(Ok(o));
-                    }
-                    let at = c
-                        .replies
-                        .iter()
-                        .position(|r| matches!(r, Reply::Ack(Ack::CaptureStopped { .. })))?;
-                    c.replies.remove(at);
-                    Some(Err(()))
-                })?;
+                let next =
+                    self.wait_within("captured frames", self.options.capture_timeout, |c| {
+                        if let Some(o) = c.finished.pop_front() {
+                            return Some(Ok(o));
+                        }
+                        let at = c
+                            .replies
+                            .iter()
+                            .position(|r| matches!(r, Reply::Ack(Ack::CaptureStopped { .. })))?;
+                        c.replies.remove(at);
+                        Some(Err(()))
+                    })?;
                 match next {
                     Ok(o) => {
                         on_frame(&o);

@@ -73,6 +73,11 @@ pub struct ClientOptions {
     /// How long [`Client::connect`] keeps sending `Hello` (QEMU's pty
     /// answers its first bytes up to ~0.7 s late, or loses them).
     pub connect_timeout: Duration,
+    /// Longest silence between captured frames in [`Client::capture`]: the
+    /// device's camera sets their pace (a slow camera, or a simulated one
+    /// whose frames the host is still making), so it is longer than
+    /// `timeout`.
+    pub capture_timeout: Duration,
     /// Frames sent ahead of their results in [`Client::stream_frames`].
     pub frames_in_flight: usize,
 }
@@ -82,6 +87,7 @@ impl Default for ClientOptions {
         ClientOptions {
             timeout: Duration::from_millis(1500),
             connect_timeout: Duration::from_secs(4),
+            capture_timeout: Duration::from_secs(10),
             frames_in_flight: 4,
         }
     }

@@ -107,6 +107,16 @@ impl Client {
     pub(super) fn wait<T>(
         &mut self,
         waiting: &str,
+        found: impl FnMut(&mut Self) -> Option<T>,
+    ) -> Result<T, LinkError> {
+        self.wait_within(waiting, self.options.timeout, found)
+    }
+
+    /// [`wait`](Self::wait) with its own longest silence.
+    pub(super) fn wait_within<T>(
+        &mut self,
+        waiting: &str,
+        timeout: Duration,
         mut found: impl FnMut(&mut Self) -> Option<T>,
     ) -> Result<T, LinkError> {
         let mut last_byte = Instant::now();
@@ -115,11 +125,11 @@ impl Client {
                 return Ok(t);
             }
             self.check_interrupt()?;
-            let left = self.options.timeout.saturating_sub(last_byte.elapsed());
+            let left = timeout.saturating_sub(last_byte.elapsed());
             if left.is_zero() {
                 return Err(LinkError::Timeout {
                     port: self.name.clone(),
-                    timeout: self.options.timeout,
+                    timeout,
                     waiting: waiting.to_string(),
                 });
             }
