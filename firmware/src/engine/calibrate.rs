@@ -194,18 +194,24 @@ pub unsafe fn value_in_run_unchecked<S: Steps>(
 /// A run's slices of the maps `S` uses (empty where a step is absent) and
 /// the fixed threshold (`i32::MIN` if absent), for [`value_in_run`]. The
 /// steps in `S` must be those `c` has.
+///
+/// # Safety
+/// `pixel + len` is at most the camera's pixel count and `c` belongs to a
+/// validated configuration (its maps have a value per camera pixel): the
+/// engine's hot path does not check the slices again.
 #[inline(always)]
-pub fn run_maps<'a, S: Steps>(
+pub(crate) unsafe fn run_maps<'a, S: Steps>(
     c: &Calibration<'a>,
     pixel: usize,
     len: usize,
 ) -> (&'a [i32], &'a [u16], i32) {
+    // SAFETY: the caller's contract.
     let background = match c.background {
-        Some(b) if S::BACKGROUND => &b[pixel..pixel + len],
+        Some(b) if S::BACKGROUND => unsafe { b.get_unchecked(pixel..pixel + len) },
         _ => &[][..],
     };
     let gain = match c.gain {
-        Some(g) if S::GAIN => &g[pixel..pixel + len],
+        Some(g) if S::GAIN => unsafe { g.get_unchecked(pixel..pixel + len) },
         _ => &[][..],
     };
     let threshold = match c.threshold {

@@ -23,7 +23,7 @@ use super::plan::plan;
 use super::prefilter;
 use super::scan::{admit_words, scan, Segment, Stop, TierEnds, WordRun};
 use super::select::{self, buffer_capacity, pack, Buffer, Cut, Entry, Tiers, Ties, WindowRule};
-use super::window::{OpenWindow, SubapertureState};
+use super::window::{OpenWindow, SegmentPath, SubapertureState};
 use brightpix_protocol::{Calibration, Config, ConfigError, MAX_WINDOW_SIDE};
 
 /// Where results go.
@@ -127,12 +127,20 @@ impl<'c, 'm> Engine<'c, 'm> {
             &mut memory.active[..available.open_windows],
         )?;
         let maps = config.calibration.background.is_some() || config.calibration.gain.is_some();
-        for (state, window) in memory.subapertures.iter_mut().zip(config.windows) {
+        let rule = config.selection.rule;
+        for (index, (state, window)) in memory
+            .subapertures
+            .iter_mut()
+            .zip(config.windows)
+            .enumerate()
+        {
             state.bounds = if maps {
                 WindowBounds::of(&config, window)
             } else {
                 WindowBounds::NONE
             };
+            state.n = config.pixel_count(index);
+            state.capacity = buffer_capacity(rule, state.n, window.pixel_count());
         }
         let mut engine = Engine {
             config,
@@ -301,28 +309,29 @@ impl<'c, 'm> Engine<'c, 'm> {
         let row_offset = row as usize * row_pixels.len();
         let mut checked = 0;
         for k in 0..self.active_len {
-            let slot = self.memory.active[k] as usize;
-            let window = &self.memory.open[slot];
+            // SAFETY (the three unchecked indexings, the loop's bounds checks
+            // being a tenth of its instructions): `active_len` is at most the
+            // active list's length and every active entry is a slot of
+            // `open` (`open_windows_of_row`); a window lies inside the
+            // camera (`Config::validate`) and `row_pixels` is a whole row.
+            let slot = unsafe { *self.memory.active.get_unchecked(k) } as usize;
+            let window = unsafe { self.memory.open.get_unchecked(slot) };
             let (x, end) = (window.x as usize, window.end_column as usize);
             if CHECK && x > checked {
                 check_range(&row_pixels[checked..x], self.max_raw).map_err(|b| checked + b)?;
             }
-            let raw = &row_pixels[x..end];
+            let raw = unsafe { row_pixels.get_unchecked(x..end) };
             // Most segments: a selecting window whose pre-filter rejects the
             // whole segment (`floor` is capped so that an out-of-range pixel
-            // is never rejected).
-            let filtered = window.capacity != 0 && !window.rescan;
-            let quiet = filtered && window.rejects(raw);
+            // is never rejected, and 0 for the windows `segment_rest` takes).
             let last = row == window.last_row;
-            if !quiet {
-                let j = row - window.y;
-                if filtered {
-                    self.hot_segment::<S, CHECK>(slot, raw, row_offset + x, 0, j)
-                } else {
-                    self.segment_rest::<S, CHECK>(slot, raw, row_offset + x, 0, j)
-                }
-                .map_err(|b| x + b)?;
+            let (pixel, j) = (row_offset + x, row - window.y);
+            match window.path(raw) {
+                SegmentPath::Rejected => Ok(()),
+                SegmentPath::Candidates => self.hot_segment::<S, CHECK>(slot, raw, pixel, 0, j),
+                SegmentPath::General => self.segment_rest::<S, CHECK>(slot, raw, pixel, 0, j),
             }
+            .map_err(|b| x + b)?;
             if last {
                 self.finish(slot, sink);
             }
@@ -431,14 +440,11 @@ impl<'c, 'm> Engine<'c, 'm> {
     ) -> Result<(), usize> {
         // The common case first, in as few instructions as it takes: a
         // selecting window whose segment the pre-filter rejects whole.
-        let window = &self.memory.open[slot];
-        if window.capacity == 0 || window.rescan {
-            return self.segment_rest::<S, CHECK>(slot, raw, pixel, i0, j);
+        match self.memory.open[slot].path(raw) {
+            SegmentPath::Rejected => Ok(()),
+            SegmentPath::Candidates => self.hot_segment::<S, CHECK>(slot, raw, pixel, i0, j),
+            SegmentPath::General => self.segment_rest::<S, CHECK>(slot, raw, pixel, i0, j),
         }
-        if window.rejects(raw) {
-            return Ok(());
-        }
-        self.hot_segment::<S, CHECK>(slot, raw, pixel, i0, j)
     }
 
     /// The rest of [`segment`](Self::segment): windows without selection,
@@ -471,9 +477,11 @@ impl<'c, 'm> Engine<'c, 'm> {
                 Ok(())
             };
         }
+        // SAFETY: the segment lies in the camera (a window's row, validated
+        // configuration).
         let (background, gain, fixed) =
-            calibrate::run_maps::<S>(&self.config.calibration, pixel, raw.len());
-        let base = window.slot as usize * self.stride;
+            unsafe { calibrate::run_maps::<S>(&self.config.calibration, pixel, raw.len()) };
+        let base = window.base as usize;
         let capacity = window.capacity as usize;
         let entries = &mut memory.entries[base..base + capacity];
         let max_raw = self.max_raw;
@@ -498,6 +506,7 @@ impl<'c, 'm> Engine<'c, 'm> {
             self.stats.compactions = self.stats.compactions.wrapping_add(1);
             if !make_room(window, entries, &self.config, memory.scratch) {
                 window.rescan = true;
+                window.floor = 0;
                 return if CHECK {
                     check_range(&raw[k + 1..], max_raw).map_err(|b| k + 1 + b)
                 } else {
@@ -516,7 +525,7 @@ impl<'c, 'm> Engine<'c, 'm> {
     /// whole: the usual case (room for every pixel, whole words, the seed
     /// in force) in as few instructions as it takes, the others in
     /// [`segment_rest`](Self::segment_rest).
-    #[inline(never)]
+    #[inline(always)]
     fn hot_segment<S: Steps, const CHECK: bool>(
         &mut self,
         slot: usize,
@@ -525,27 +534,30 @@ impl<'c, 'm> Engine<'c, 'm> {
         i0: u16,
         j: u16,
     ) -> Result<(), usize> {
-        let window = &self.memory.open[slot];
+        // SAFETY: callers pass an active window's slot (see push_whole_row).
+        let window = unsafe { self.memory.open.get_unchecked(slot) };
         let (front, back, capacity) = (
             window.front as usize,
             window.back as usize,
             window.capacity as usize,
         );
         let whole_words = (raw.as_ptr() as usize & 3) | (raw.len() & 1) == 0;
-        // capacity - front - back >= raw.len() also excludes capacity 0.
-        if window.rescan
-            || window.floor.wrapping_sub(1) >= calibrate::FLOOR_NONE - 1
-            || capacity - front - back < raw.len()
-            || !whole_words
-        {
+        // The floor passed the pre-filter (`OpenWindow::path`): a selecting
+        // window without a rescan pending.
+        if capacity - front - back < raw.len() || !whole_words {
             return self.segment_rest::<S, CHECK>(slot, raw, pixel, i0, j);
         }
+        // SAFETY: the segment lies in the camera (a window's row, validated
+        // configuration).
         let (background, gain, fixed) =
-            calibrate::run_maps::<S>(&self.config.calibration, pixel, raw.len());
+            unsafe { calibrate::run_maps::<S>(&self.config.calibration, pixel, raw.len()) };
         let memory = &mut self.memory;
-        let window = &mut memory.open[slot];
-        let base = window.slot as usize * self.stride;
-        let entries = &mut memory.entries[base..base + capacity];
+        // SAFETY: as above.
+        let window = unsafe { memory.open.get_unchecked_mut(slot) };
+        let base = window.base as usize;
+        // SAFETY: a slot's entries lie in the pool (`plan`: the pool holds
+        // `stride` entries for every slot, and capacity <= stride).
+        let entries = unsafe { memory.entries.get_unchecked_mut(base..base + capacity) };
         let origin = entries.as_mut_ptr();
         let run = WordRun {
             first: 0,
@@ -603,7 +615,7 @@ impl<'c, 'm> Engine<'c, 'm> {
                 pixels: window.pixels(),
             };
             let state = &mut memory.subapertures[window.index as usize];
-            let base = window.slot as usize * self.stride;
+            let base = window.base as usize;
             let capacity = window.capacity as usize;
             let (front, back) = (window.front as usize, window.back as usize);
             let entries = &memory.entries[base..base + capacity];
@@ -777,7 +789,6 @@ impl<'c, 'm> Engine<'c, 'm> {
     /// Opens the windows whose first row is the current row.
     fn open_windows_of_row(&mut self) {
         let windows = self.config.windows;
-        let rule = self.config.selection.rule;
         while self.next_to_open < windows.len() {
             let index = self.memory.order[self.next_to_open] as usize;
             let w = windows[index];
@@ -788,9 +799,8 @@ impl<'c, 'm> Engine<'c, 'm> {
             // Capacity was proved sufficient when the engine was configured.
             self.free_len -= 1;
             let slot = self.memory.free[self.free_len];
-            let n = self.config.pixel_count(index);
-            let capacity = buffer_capacity(rule, n, w.pixel_count());
             let state = &self.memory.subapertures[index];
+            let (n, capacity) = (state.n, state.capacity);
             let (hint, low) = if capacity > 0 {
                 state.seed.thresholds()
             } else {
@@ -804,7 +814,7 @@ impl<'c, 'm> Engine<'c, 'm> {
                 last_row: w.last_row(),
                 width: w.width,
                 height: w.height,
-                slot,
+                base: (slot as usize * self.stride) as u32,
                 finished: false,
                 n,
                 capacity,
@@ -817,8 +827,12 @@ impl<'c, 'm> Engine<'c, 'm> {
                 strict: false,
                 at_hint: 0,
                 counted: 0,
-                floor: raw_floor(&self.config.calibration, state.bounds, low)
-                    .min(self.max_raw as u32 + 1),
+                floor: if capacity > 0 {
+                    raw_floor(&self.config.calibration, state.bounds, low)
+                        .min(self.max_raw as u32 + 1)
+                } else {
+                    0
+                },
                 rescan: false,
                 bounds: state.bounds,
                 moments: Moments::ZERO,
@@ -863,9 +877,12 @@ fn copy_pixels(from: &[u16], to: &mut [u16]) {
     // slices at the same place, since their addresses agree modulo 4.
     let (fh, fw, ft) = unsafe { from.align_to::<u32>() };
     let (th, tw, tt) = unsafe { to.align_to_mut::<u32>() };
-    th.copy_from_slice(fh);
+    // At most one pixel each side: a loop, not `copy_from_slice` (a call
+    // to `memcpy` even when empty, ~0.3 instructions a pixel on CANARY).
+    for (t, f) in th.iter_mut().zip(fh).chain(tt.iter_mut().zip(ft)) {
+        *t = *f;
+    }
     prefilter::copy_words(fw, tw);
-    tt.copy_from_slice(ft);
 }
 
 /// Counts the front entries equal to the hint that arrived since the last

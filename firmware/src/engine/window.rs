@@ -16,8 +16,13 @@ pub struct SubapertureState {
     /// Where the next frame's admission threshold starts (speed only).
     pub seed: Seed,
     /// Of its calibration maps, for the pre-filter; derived from the
-    /// configuration whenever an engine is built.
+    /// configuration whenever an engine is built, as are `n` and `capacity`.
     pub bounds: WindowBounds,
+    /// N of the window (SPEC.md §3).
+    pub n: u16,
+    /// Its candidate buffer's capacity (`select::buffer_capacity`; 0: no
+    /// selection).
+    pub capacity: u16,
 }
 
 impl SubapertureState {
@@ -30,6 +35,8 @@ impl SubapertureState {
             background_min: 0,
             gain_max: 0,
         },
+        n: 0,
+        capacity: 0,
     };
 }
 
@@ -43,8 +50,9 @@ pub struct OpenWindow {
     pub(crate) last_row: u16,
     pub(crate) width: u16,
     pub(crate) height: u16,
-    /// Its slot of the candidate pool.
-    pub(crate) slot: u16,
+    /// Its first entry in the candidate pool (its slot times the pool's
+    /// stride).
+    pub(crate) base: u32,
     pub(crate) finished: bool,
     /// N of this window (SPEC.md §3).
     pub(crate) n: u16,
@@ -70,7 +78,9 @@ pub struct OpenWindow {
     /// Smallest raw value that can reach `low` (see
     /// `calibrate::raw_floor`), lowered to one above the camera's largest
     /// raw value when that is below 2^16, so that an out-of-range pixel
-    /// always reaches the per-pixel check.
+    /// always reaches the per-pixel check. Always 0 (every segment passes,
+    /// to `Engine::segment_rest`) for a window without selection or awaiting
+    /// a rescan, so that the row loop tests one field, not three.
     pub(crate) floor: u32,
     /// `low` left out a needed pixel or the buffer could not be compacted:
     /// the window is computed again from the row history at its end.
@@ -89,7 +99,7 @@ impl OpenWindow {
         last_row: 0,
         width: 0,
         height: 0,
-        slot: 0,
+        base: 0,
         finished: true,
         n: 0,
         capacity: 0,
@@ -124,12 +134,26 @@ impl OpenWindow {
         }
     }
 
-    /// Whether the pre-filter rejects this row segment of a selecting
-    /// window whole (`floor` is capped so that an out-of-range pixel is
-    /// never rejected; a floor of 0 lets every pixel through).
+    /// Where a row segment of this window goes: the pre-filter rejects it
+    /// whole (`floor` is capped so that an out-of-range pixel is never
+    /// rejected), or it has candidates, or the window is one the general
+    /// path takes (floor 0: every pixel passes, no selection, a rescan).
     #[inline(always)]
-    pub(crate) fn rejects(&self, raw: &[u16]) -> bool {
-        self.floor >= FLOOR_NONE
-            || (self.floor != 0 && !prefilter::any_at_least(raw, self.floor as u16))
+    pub(crate) fn path(&self, raw: &[u16]) -> SegmentPath {
+        match self.floor {
+            0 => SegmentPath::General,
+            floor if floor < FLOOR_NONE && prefilter::any_at_least(raw, floor as u16) => {
+                SegmentPath::Candidates
+            }
+            _ => SegmentPath::Rejected,
+        }
     }
+}
+
+/// See [`OpenWindow::path`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum SegmentPath {
+    Rejected,
+    Candidates,
+    General,
 }
