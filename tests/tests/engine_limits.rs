@@ -85,9 +85,10 @@ fn elt_class_80x80_grid_on_a_960x960_camera() {
         .memory_needed();
     // One grid row of windows open at a time: the memory budget of memory.rs.
     assert_eq!(needed.open_windows, 80);
-    // A candidate buffer of 2 (N + 1) + 32 entries per open window, the 12
-    // rows of the windows in the history, one window's pixels of scratch.
-    assert_eq!(needed.pool_entries, 80 * 74);
+    // A candidate buffer of its preferred 4 (N + 1) + 64 = 148 entries per
+    // open window, capped at the window's 144 pixels; the 12 rows of the
+    // windows in the history, one window's pixels of scratch.
+    assert_eq!(needed.pool_entries, 80 * 144);
     assert_eq!(needed.history_pixels, 12 * 960);
     assert_eq!(needed.scratch_entries, 144);
     assert_engine_matches_reference(config, &[frame(camera, 7)], 4096);
@@ -168,6 +169,72 @@ fn overlapping_and_unordered_windows() {
             &frames,
             chunk,
         );
+    }
+}
+
+/// A pool too small for every open window's preferred buffer gives each
+/// what it holds, down to the least: the results stay those of the
+/// reference (only speed changes), and the smallest pool compacts.
+#[test]
+fn a_smaller_pool_gives_smaller_buffers_and_the_same_results() {
+    let camera = Camera {
+        width: 112,
+        height: 112,
+        bit_depth: 12,
+    };
+    let grid = RegularGrid {
+        x: 0,
+        y: 0,
+        columns: 7,
+        rows: 7,
+        width: 16,
+        height: 16,
+        pitch_x: 16,
+        pitch_y: 16,
+    };
+    let windows: Vec<_> = grid.windows().collect();
+    let config = config(camera, &windows, SelectionRule::SubtractNext, 20);
+    let frames: Vec<_> = (0..4).map(|seed| frame(camera, seed + 3)).collect();
+    let mut reference = Reference::new(&config).unwrap();
+    let want: Vec<_> = frames
+        .iter()
+        .map(|f| reference.process_frame(f).unwrap())
+        .collect();
+    let preferred = EngineBuffers::needed(&config).unwrap();
+    assert_eq!(preferred.pool_entries, 7 * 148);
+    for (pool, stride) in [
+        (7 * 74, 74),
+        (7 * 100 + 6, 100),
+        (7 * 148, 148),
+        (7 * 300, 148),
+    ] {
+        let mut buffers = EngineBuffers::with_capacity(MemorySize {
+            pool_entries: pool,
+            ..preferred
+        });
+        let mut engine = Engine::new(config, buffers.memory()).unwrap();
+        assert_eq!(
+            engine.memory_needed().pool_entries,
+            7 * stride,
+            "pool {pool}"
+        );
+        for (frame, want) in frames.iter().zip(&want) {
+            let mut got = Vec::new();
+            engine.push(frame, &mut |r| got.push(r)).unwrap();
+            got.sort_by_key(|r| r.index);
+            let got: Vec<_> = got
+                .iter()
+                .map(|g| (g.index as usize, g.slope_x, g.slope_y, g.flux, g.valid))
+                .collect();
+            let want: Vec<_> = want
+                .iter()
+                .map(|w| (w.index, w.slope_x, w.slope_y, w.flux, w.valid))
+                .collect();
+            assert_eq!(got, want, "pool {pool}");
+        }
+        if stride == 74 {
+            assert!(engine.stats().compactions > 0, "{:?}", engine.stats());
+        }
     }
 }
 

@@ -7,8 +7,11 @@
 //!   its last, so a regular grid has one grid row of windows open):
 //!   `size_of::<OpenWindow>()` + 4 bytes (active list, free list);
 //! - per open window, a candidate buffer of `stride` entries of 8 bytes
-//!   (value + position), `stride` the largest `select::buffer_capacity`
-//!   over the windows (about `2 (N + 1) + 32`; 0 without selection);
+//!   (value + position): the largest `select::preferred_capacity` over the
+//!   windows (about `4 (N + 1) + 64`, at most the window's pixels; 0
+//!   without selection) when the pool holds that for every open window,
+//!   else what it holds, down to the largest `select::least_capacity`
+//!   (about `2 (N + 1) + 32`): less room costs speed, never a result;
 //! - a row history: the last `H` camera rows, `H` the tallest window that
 //!   selects, 2 bytes per pixel, from which a window is rescanned when its
 //!   seed left out a pixel it needed;
@@ -16,10 +19,11 @@
 //!   largest window that selects (at least `stride`).
 //!
 //! E.g. CANARY (112x112, 7x7 windows of 16x16, subtract-next N = 20):
-//! 49 sub-apertures, 7 open windows, 7 x 74 candidate entries, 16 x 112
-//! history pixels (3.5 KiB), 256 scratch entries. An 80x80 grid of 16x16
-//! windows (6400 sub-apertures, ELT class): 80 open windows, 80 x 74
-//! entries (35 KiB), 16 x 1280 history pixels (40 KiB).
+//! 49 sub-apertures, 7 open windows, 7 x 148 candidate entries (7 x 74 at
+//! least), 16 x 112 history pixels (3.5 KiB), 256 scratch entries. An 80x80
+//! grid of 16x16 windows (6400 sub-apertures, ELT class): 80 open windows,
+//! 80 x 148 entries (93 KiB; 46 KiB at least), 16 x 1280 history pixels
+//! (40 KiB).
 
 use super::select::Entry;
 use super::window::{OpenWindow, SubapertureState};

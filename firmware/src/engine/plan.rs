@@ -2,12 +2,16 @@
 //! order, how many are open at once, and the memory that takes.
 
 use super::memory::MemorySize;
-use super::select::buffer_capacity;
+use super::select::{least_capacity, preferred_capacity};
 use brightpix_protocol::{Config, ConfigError, MemoryKind, SubapertureWindow};
 
 /// Sizes of an engine for a configuration.
 pub(super) struct Plan {
-    /// Candidate entries per open window.
+    /// Candidate entries per open window: each window's
+    /// `preferred_capacity` if the pool holds that many for every open
+    /// window, else as many as it holds (at least every window's
+    /// `least_capacity`). A window's buffer is the smaller of its preferred
+    /// capacity and the stride.
     pub(super) stride: usize,
     /// Rows of the history ring.
     pub(super) history_rows: usize,
@@ -40,13 +44,16 @@ pub(super) fn plan(
     }
     order.sort_unstable_by_key(|&k| (windows[k as usize].y, windows[k as usize].x));
     let rule = config.selection.rule;
-    let (mut stride, mut history_rows, mut scratch) = (0usize, 0usize, 0usize);
+    let (mut least, mut preferred) = (0usize, 0usize);
+    let (mut history_rows, mut scratch) = (0usize, 0usize);
     for (k, w) in windows.iter().enumerate() {
-        let capacity = buffer_capacity(rule, config.pixel_count(k), w.pixel_count()) as usize;
+        let (n, pixels) = (config.pixel_count(k), w.pixel_count());
+        let capacity = least_capacity(rule, n, pixels) as usize;
         if capacity > 0 {
-            stride = stride.max(capacity);
+            least = least.max(capacity);
+            preferred = preferred.max(preferred_capacity(rule, n, pixels) as usize);
             history_rows = history_rows.max(w.height as usize);
-            scratch = scratch.max(w.pixel_count());
+            scratch = scratch.max(pixels);
         }
     }
     let open = match count_open_windows(windows, order, heap) {
@@ -59,6 +66,16 @@ pub(super) fn plan(
             })
         }
     };
+    // The preferred stride if the pool holds it, else what it holds; at
+    // least the least (if that does not fit, the check below says so).
+    let stride = preferred
+        .min(
+            available
+                .pool_entries
+                .checked_div(open)
+                .unwrap_or(preferred),
+        )
+        .max(least);
     let needed = MemorySize {
         subapertures: count,
         open_windows: open,

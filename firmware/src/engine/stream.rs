@@ -22,7 +22,7 @@ use super::memory::{EngineMemory, MemorySize};
 use super::plan::plan;
 use super::prefilter;
 use super::scan::{admit_words, scan, Segment, Stop, TierEnds, WordRun};
-use super::select::{self, buffer_capacity, pack, Buffer, Cut, Entry, Tiers, Ties, WindowRule};
+use super::select::{self, pack, preferred_capacity, Buffer, Cut, Entry, Tiers, Ties, WindowRule};
 use super::window::{OpenWindow, SegmentPath, SubapertureState};
 use brightpix_protocol::{Calibration, Config, ConfigError, MAX_WINDOW_SIDE};
 
@@ -140,7 +140,8 @@ impl<'c, 'm> Engine<'c, 'm> {
                 WindowBounds::NONE
             };
             state.n = config.pixel_count(index);
-            state.capacity = buffer_capacity(rule, state.n, window.pixel_count());
+            state.capacity =
+                preferred_capacity(rule, state.n, window.pixel_count()).min(plan.stride as u16);
         }
         let mut engine = Engine {
             config,

@@ -39,8 +39,11 @@ pub const SUBAPERTURES: usize = 1600;
 /// Windows open at once (one grid row of 40, with room for irregular layouts).
 pub const OPEN_WINDOWS: usize = 128;
 /// Candidate pool entries, 8 bytes each (e.g. a grid row of 40 windows of
-/// 6x6, 36 each; 41 windows of 16x16 with N = 20, 74 each; a window's
-/// buffer is about 2 (N + 1) + 32 entries, at most its pixels).
+/// 6x6, 36 each; 20 windows of 16x16 with N = 20 get their preferred 148
+/// each, 41 of them their least, 74: a window's buffer is about
+/// 4 (N + 1) + 64 entries when the pool holds that for every open window,
+/// else what it holds down to about 2 (N + 1) + 32, at most its pixels;
+/// see `engine::memory`).
 pub const POOL_ENTRIES: usize = 3072;
 /// Row-history pixels: selecting windows up to 16 rows tall on a 240-pixel
 /// wide camera.
