@@ -30,6 +30,71 @@ pub fn any_at_least_portable(raw: &[u16], floor: u16) -> bool {
     raw.iter().fold(0, |any, &r| any | r.saturating_sub(below)) != 0
 }
 
+/// The pixels of `raw` (at most 64) at or above `floor` as a bit mask: bit
+/// `k` for `raw[k] >= floor`; `floor >= 1`. The host's hot loop visits only
+/// those bits (`scan::admit_words_portable`).
+///
+/// On x86-64, eight pixels per SSE2 step (`PSUBUSW` against `floor - 1`,
+/// `PCMPEQW`, `PMOVMSKB`), about a dozen instructions for a 16-pixel
+/// segment where the compiler's scalar loop took four a pixel;
+/// [`mask_at_least_portable`] is its twin (tests/tests/prefilter_mask.rs
+/// compares them).
+#[inline(always)]
+pub fn mask_at_least(raw: &[u16], floor: u16) -> u64 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        sse2::mask_at_least(raw, floor)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        mask_at_least_portable(raw, floor)
+    }
+}
+
+/// The portable definition of [`mask_at_least`].
+#[inline(always)]
+pub fn mask_at_least_portable(raw: &[u16], floor: u16) -> u64 {
+    debug_assert!(raw.len() <= 64);
+    raw.iter()
+        .take(64)
+        .enumerate()
+        .fold(0, |mask, (k, &r)| mask | ((r >= floor) as u64) << k)
+}
+
+#[cfg(target_arch = "x86_64")]
+mod sse2 {
+    use core::arch::x86_64::{
+        _mm_cmpeq_epi16, _mm_loadu_si128, _mm_movemask_epi8, _mm_packs_epi16, _mm_set1_epi16,
+        _mm_setzero_si128, _mm_subs_epu16,
+    };
+
+    #[inline(always)]
+    pub fn mask_at_least(raw: &[u16], floor: u16) -> u64 {
+        let raw = &raw[..raw.len().min(64)];
+        // SAFETY: SSE2 is part of x86-64; the loads read 8 pixels of `raw`
+        // each (`chunks_exact(8)`).
+        unsafe {
+            let below = _mm_set1_epi16(floor.wrapping_sub(1) as i16);
+            let zero = _mm_setzero_si128();
+            let mut mask = 0u64;
+            let mut chunks = raw.chunks_exact(8);
+            for (c, chunk) in (&mut chunks).enumerate() {
+                let v = _mm_loadu_si128(chunk.as_ptr().cast());
+                // A lane is 0xffff where the pixel is at most floor - 1.
+                let low = _mm_cmpeq_epi16(_mm_subs_epu16(v, below), zero);
+                // One byte per lane, then one bit per byte.
+                let bits = _mm_movemask_epi8(_mm_packs_epi16(low, zero)) as u64 & 0xff;
+                mask |= (bits ^ 0xff) << (8 * c);
+            }
+            let done = raw.len() - chunks.remainder().len();
+            for (k, &r) in chunks.remainder().iter().enumerate() {
+                mask |= ((r >= floor) as u64) << (done + k);
+            }
+            mask
+        }
+    }
+}
+
 /// Calls `f(k, r)` for each pixel `raw[k] = r` with `r >= floor`, in
 /// order, until `f` returns `false`; returns the offset after the pixel that
 /// stopped it, or `raw.len()`.

@@ -343,65 +343,77 @@ pub unsafe fn admit_words_portable<S: Steps, const CHECK: bool>(
         base,
         max_raw,
     } = *run;
-    let mut bad = None;
-    macro_rules! lane {
-        ($k:expr, $r:expr) => {{
-            let (k, r) = ($k, $r);
+    // Hosts: a bit mask of the pixels that reach the floor (a segment is
+    // at most 64 pixels: MAX_WINDOW_SIDE), then one iteration per such
+    // pixel. A word loop's branches are taken at random in a hot segment,
+    // which costs a superscalar core more than this.
+    #[cfg(not(target_arch = "arm"))]
+    {
+        // SAFETY: `words` is `2 words.len()` pixels (u16 pairs).
+        let raw =
+            unsafe { core::slice::from_raw_parts(words.as_ptr() as *const u16, 2 * words.len()) };
+        let mut mask = prefilter::mask_at_least(raw, (lanes as u16).wrapping_add(1));
+        while mask != 0 {
+            let i = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            // SAFETY: i < raw.len() (a bit of the mask).
+            let r = unsafe { *raw.get_unchecked(i) };
+            let k = first + i;
             if CHECK && r > max_raw {
-                bad = Some(k);
-                break;
+                return Some(k);
             }
             // SAFETY: k is within the maps (the caller's contract).
             let p =
                 unsafe { calibrate::value_in_run_unchecked::<S>(r, k, background, gain, fixed) };
-            if p >= admit {
-                let entry = Entry {
-                    value: p,
-                    position: (base + k as u16) as u32,
-                };
-                // SAFETY: room is proved for every pixel (the caller's
-                // contract), and each pixel stores at most once.
-                unsafe { ends.put(entry, hint) };
-            }
-        }};
+            let entry = Entry {
+                value: p,
+                position: (base + k as u16) as u32,
+            };
+            // SAFETY: room for every pixel (the caller's contract), each
+            // pixel stored at most once.
+            unsafe { ends.put_branch_free(entry, p >= admit, hint) };
+        }
+        None
     }
-    // Hosts: branch-free, every pixel (the branches of a hot segment are
-    // taken at random, which costs a superscalar core more than doing every
-    // pixel).
-    #[cfg(not(target_arch = "arm"))]
-    if !CHECK {
-        for (w, &word) in words.iter().enumerate() {
-            for (k, r) in [
-                (first + 2 * w, word as u16),
-                (first + 2 * w + 1, (word >> 16) as u16),
-            ] {
+    #[cfg(target_arch = "arm")]
+    {
+        let mut bad = None;
+        macro_rules! lane {
+            ($k:expr, $r:expr) => {{
+                let (k, r) = ($k, $r);
+                if CHECK && r > max_raw {
+                    bad = Some(k);
+                    break;
+                }
                 // SAFETY: k is within the maps (the caller's contract).
                 let p = unsafe {
                     calibrate::value_in_run_unchecked::<S>(r, k, background, gain, fixed)
                 };
-                let entry = Entry {
-                    value: p,
-                    position: (base + k as u16) as u32,
-                };
-                // SAFETY: room for every pixel (the caller's contract).
-                unsafe { ends.put_branch_free(entry, p >= admit, hint) };
+                if p >= admit {
+                    let entry = Entry {
+                        value: p,
+                        position: (base + k as u16) as u32,
+                    };
+                    // SAFETY: room is proved for every pixel (the caller's
+                    // contract), and each pixel stores at most once.
+                    unsafe { ends.put(entry, hint) };
+                }
+            }};
+        }
+        for (w, &word) in words.iter().enumerate() {
+            let passing = prefilter::uqsub16(word, lanes);
+            if passing != 0 {
+                let k = first + 2 * w;
+                if passing & 0xffff != 0 {
+                    lane!(k, word as u16);
+                }
+                if passing >> 16 != 0 {
+                    lane!(k + 1, (word >> 16) as u16);
+                }
             }
         }
-        return None;
+        bad
     }
-    for (w, &word) in words.iter().enumerate() {
-        let passing = prefilter::uqsub16(word, lanes);
-        if passing != 0 {
-            let k = first + 2 * w;
-            if passing & 0xffff != 0 {
-                lane!(k, word as u16);
-            }
-            if passing >> 16 != 0 {
-                lane!(k + 1, (word >> 16) as u16);
-            }
-        }
-    }
-    bad
 }
 
 #[cfg(target_arch = "arm")]
