@@ -23,6 +23,20 @@ pub fn any_at_least(raw: &[u16], floor: u16) -> bool {
     }
 }
 
+/// [`any_at_least`] with `floor - 1` given in both 16-bit lanes of `lanes`
+/// (as an open window keeps it, so the row loop does not form it again).
+#[inline(always)]
+pub fn any_above_lanes(raw: &[u16], lanes: u32) -> bool {
+    #[cfg(target_arch = "arm")]
+    {
+        dsp::any_above_lanes(raw, lanes)
+    }
+    #[cfg(not(target_arch = "arm"))]
+    {
+        any_at_least_portable(raw, (lanes as u16).wrapping_add(1))
+    }
+}
+
 /// The portable definition of [`any_at_least`].
 #[inline(always)]
 pub fn any_at_least_portable(raw: &[u16], floor: u16) -> bool {
@@ -242,7 +256,17 @@ mod dsp {
     #[inline(always)]
     pub fn any_at_least(raw: &[u16], floor: u16) -> bool {
         let below = floor.wrapping_sub(1);
-        let lanes = below as u32 * 0x0001_0001;
+        any_above(raw, below, below as u32 * 0x0001_0001)
+    }
+
+    #[inline(always)]
+    pub fn any_above_lanes(raw: &[u16], lanes: u32) -> bool {
+        any_above(raw, lanes as u16, lanes)
+    }
+
+    /// Whether some pixel is above `below` (`lanes`: it in both lanes).
+    #[inline(always)]
+    fn any_above(raw: &[u16], below: u16, lanes: u32) -> bool {
         // The usual run: word-aligned, a whole number of words (a window's
         // row segment of even width at an even column).
         if (raw.as_ptr() as usize | raw.len()) & 1 == 0 && raw.as_ptr() as usize & 2 == 0 {

@@ -61,7 +61,7 @@ pub(super) fn scan<S: Steps, const CHECK: bool>(
     } = *segment;
     let capacity = entries.len();
     let hint = window.hint;
-    let admit = window.admit();
+    let admit = window.admit;
     let floor = window.floor;
     let (front, back) = (window.front as usize, window.back as usize);
     // The maps cover the whole segment; the scan reads offsets `start ..`.

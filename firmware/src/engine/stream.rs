@@ -127,21 +127,12 @@ impl<'c, 'm> Engine<'c, 'm> {
             &mut memory.active[..available.open_windows],
         )?;
         let maps = config.calibration.background.is_some() || config.calibration.gain.is_some();
-        let rule = config.selection.rule;
-        for (index, (state, window)) in memory
-            .subapertures
-            .iter_mut()
-            .zip(config.windows)
-            .enumerate()
-        {
+        for (state, window) in memory.subapertures.iter_mut().zip(config.windows) {
             state.bounds = if maps {
                 WindowBounds::of(&config, window)
             } else {
                 WindowBounds::NONE
             };
-            state.n = config.pixel_count(index);
-            state.capacity =
-                preferred_capacity(rule, state.n, window.pixel_count()).min(plan.stride as u16);
         }
         let mut engine = Engine {
             config,
@@ -514,7 +505,7 @@ impl<'c, 'm> Engine<'c, 'm> {
                     Ok(())
                 };
             }
-            window.floor = admission_floor(&self.config.calibration, max_raw, window);
+            update_admission(window, &self.config.calibration, max_raw);
             place(window, entries, entry);
             start = k + 1;
         }
@@ -565,15 +556,8 @@ impl<'c, 'm> Engine<'c, 'm> {
             background,
             gain,
             fixed,
-            lanes: (window.floor - 1) * 0x0001_0001,
-            // `window.admit()` written out: beside `hint` below, the
-            // compiler shares the loads (the method form measured 0.7% more
-            // instructions per pixel).
-            admit: if window.strict {
-                window.hint.saturating_add(1)
-            } else {
-                window.low
-            },
+            lanes: window.lanes,
+            admit: window.admit,
             hint: window.hint,
             base: pack(i0, j),
             max_raw: self.max_raw,
@@ -800,8 +784,11 @@ impl<'c, 'm> Engine<'c, 'm> {
             // Capacity was proved sufficient when the engine was configured.
             self.free_len -= 1;
             let slot = self.memory.free[self.free_len];
+            let n = self.config.pixel_count(index);
+            // The stride is at least every window's least capacity (plan).
+            let capacity = preferred_capacity(self.config.selection.rule, n, w.pixel_count())
+                .min(self.stride as u16);
             let state = &self.memory.subapertures[index];
-            let (n, capacity) = (state.n, state.capacity);
             let (hint, low) = if capacity > 0 {
                 state.seed.thresholds()
             } else {
@@ -826,18 +813,21 @@ impl<'c, 'm> Engine<'c, 'm> {
                 low,
                 low_ties: Ties::NONE,
                 strict: false,
+                admit: low,
+                lanes: 0,
                 at_hint: 0,
                 counted: 0,
-                floor: if capacity > 0 {
-                    raw_floor(&self.config.calibration, state.bounds, low)
-                        .min(self.max_raw as u32 + 1)
-                } else {
-                    0
-                },
+                floor: 0,
                 rescan: false,
                 bounds: state.bounds,
                 moments: Moments::ZERO,
             };
+            // A window without selection keeps floor 0 (every segment to
+            // `segment_rest`).
+            if capacity > 0 {
+                let window = &mut self.memory.open[slot as usize];
+                update_admission(window, &self.config.calibration, self.max_raw);
+            }
             // Insert into the active list, sorted by first column.
             let active = &mut self.memory.active;
             let open = &self.memory.open;
@@ -919,15 +909,19 @@ fn raise_to_hint(window: &mut OpenWindow, entries: &[Entry], config: &Config<'_>
             window.n,
             window.front - window.at_hint,
         );
-        window.floor = admission_floor(&config.calibration, max_raw, window);
+        update_admission(window, &config.calibration, max_raw);
     }
 }
 
-/// The pre-filter's raw floor for a window's admission threshold, lowered
-/// so that a pixel above `max_raw` always passes (see `OpenWindow::floor`).
+/// After `low`, `hint` or `strict` changed: the window's admission
+/// threshold, and the pre-filter's raw floor for it, lowered so that a pixel
+/// above `max_raw` always passes (see `OpenWindow::floor`), in both forms.
 #[inline(always)]
-fn admission_floor(calibration: &Calibration<'_>, max_raw: u16, window: &OpenWindow) -> u32 {
-    raw_floor(calibration, window.bounds, window.admit()).min(max_raw as u32 + 1)
+fn update_admission(window: &mut OpenWindow, calibration: &Calibration<'_>, max_raw: u16) {
+    window.admit = window.admission();
+    let floor = raw_floor(calibration, window.bounds, window.admit).min(max_raw as u32 + 1);
+    window.floor = floor;
+    window.lanes = floor.wrapping_sub(1).wrapping_mul(0x0001_0001);
 }
 
 /// [`Tiers::covers_hint`] for an open window: its front holds the pixels
@@ -995,7 +989,7 @@ fn make_room(
 /// Puts an admitted pixel into its tier, after [`make_room`].
 #[cold]
 fn place(window: &mut OpenWindow, entries: &mut [Entry], entry: Entry) {
-    let admit = window.admit();
+    let admit = window.admit;
     let capacity = entries.len();
     let p = entry.value;
     if p < admit {

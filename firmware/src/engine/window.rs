@@ -16,13 +16,8 @@ pub struct SubapertureState {
     /// Where the next frame's admission threshold starts (speed only).
     pub seed: Seed,
     /// Of its calibration maps, for the pre-filter; derived from the
-    /// configuration whenever an engine is built, as are `n` and `capacity`.
+    /// configuration whenever an engine is built.
     pub bounds: WindowBounds,
-    /// N of the window (SPEC.md §3).
-    pub n: u16,
-    /// Its candidate buffer's capacity (`select::buffer_capacity`; 0: no
-    /// selection).
-    pub capacity: u16,
 }
 
 impl SubapertureState {
@@ -35,8 +30,6 @@ impl SubapertureState {
             background_min: 0,
             gain_max: 0,
         },
-        n: 0,
-        capacity: 0,
     };
 }
 
@@ -75,6 +68,13 @@ pub struct OpenWindow {
     pub(crate) low_ties: Ties,
     /// Admission is `p > low` (see `select::Buffer::strict`).
     pub(crate) strict: bool,
+    /// The calibrated value a pixel needs to become a candidate
+    /// ([`OpenWindow::admission`] of `low`, `hint` and `strict`), kept with
+    /// `floor` and `lanes` by `stream::update_admission` whenever one of
+    /// them changes: the hot loop reads it instead of deciding again.
+    pub(crate) admit: i32,
+    /// `floor - 1` in both 16-bit lanes, for the hot loop's `UQSUB16`.
+    pub(crate) lanes: u32,
     /// Smallest raw value that can reach `low` (see
     /// `calibrate::raw_floor`), lowered to one above the camera's largest
     /// raw value when that is below 2^16, so that an out-of-range pixel
@@ -112,6 +112,8 @@ impl OpenWindow {
         low: 0,
         low_ties: Ties::NONE,
         strict: false,
+        admit: 0,
+        lanes: 0,
         floor: 0,
         rescan: false,
         bounds: WindowBounds::NONE,
@@ -124,9 +126,10 @@ impl OpenWindow {
     }
 
     /// The calibrated value a pixel needs to become a candidate: `low`, or
-    /// just above the hint once admission is strict.
+    /// just above the hint once admission is strict (the definition of the
+    /// `admit` field).
     #[inline(always)]
-    pub(crate) fn admit(&self) -> i32 {
+    pub(crate) fn admission(&self) -> i32 {
         if self.strict {
             self.hint.saturating_add(1)
         } else {
@@ -142,7 +145,7 @@ impl OpenWindow {
     pub(crate) fn path(&self, raw: &[u16]) -> SegmentPath {
         match self.floor {
             0 => SegmentPath::General,
-            floor if floor < FLOOR_NONE && prefilter::any_at_least(raw, floor as u16) => {
+            floor if floor < FLOOR_NONE && prefilter::any_above_lanes(raw, self.lanes) => {
                 SegmentPath::Candidates
             }
             _ => SegmentPath::Rejected,
