@@ -69,7 +69,7 @@ impl DeviceLimits {
                 1600,
                 240 * 240,
                 128,
-                4096,
+                3072,
                 16 * 240,
                 256,
                 64,
@@ -177,6 +177,7 @@ pub fn check(config: &Config<'_>, limits: &DeviceLimits) -> Result<MemorySize, D
 mod tests {
     use super::*;
     use crate::config_file::ProcessingConfig;
+    use brightpix_firmware::engine::select::{least_capacity, preferred_capacity};
     use brightpix_protocol::wire::CapacityKind;
     use brightpix_protocol::{Camera, MemoryKind, RegularGrid};
 
@@ -220,8 +221,9 @@ mod tests {
             }
         );
         // The STM32H743: 64x64 windows need more row history and scratch
-        // than it has; a row of 16x16 windows fits, and needs the pool it
-        // says (one entry less is refused).
+        // than it has; a row of 16x16 windows fits, each window's buffer
+        // what the pool holds up to its preferred size, and a pool below
+        // every window's least buffer is refused.
         let h7 = DeviceLimits::named("stm32h743").unwrap();
         assert!(matches!(
             check(&grid(4, 1, 64).view(), &h7).unwrap_err(),
@@ -229,8 +231,24 @@ mod tests {
         ));
         let row = grid(15, 1, 16);
         let needed = check(&row.view(), &h7).unwrap();
+        let view = row.view();
+        let (rule, n) = (view.selection.rule, view.pixel_count(0));
+        let least = least_capacity(rule, n, 256) as usize;
+        let preferred = preferred_capacity(rule, n, 256) as usize;
+        assert_eq!(
+            needed.pool_entries,
+            15 * preferred.min(h7.pool_entries as usize / 15)
+        );
+        let enough = DeviceLimits {
+            pool_entries: (15 * least) as u32,
+            ..h7.clone()
+        };
+        assert_eq!(
+            check(&row.view(), &enough).unwrap().pool_entries,
+            15 * least
+        );
         let tight = DeviceLimits {
-            pool_entries: needed.pool_entries as u32 - 1,
+            pool_entries: (15 * least) as u32 - 1,
             ..h7.clone()
         };
         match check(&row.view(), &tight).unwrap_err() {
