@@ -18,7 +18,7 @@
 
 use brightpix_firmware::engine::calibrate::{raw_floor, WindowBounds, FLOOR_NONE};
 use brightpix_firmware::engine::centroid::{Centroider, Moments};
-use brightpix_firmware::engine::prefilter::any_at_least;
+use brightpix_firmware::engine::prefilter::{any_at_least, for_each_at_least};
 use brightpix_firmware::engine::SubapertureResult;
 use brightpix_protocol::Calibration;
 
@@ -86,6 +86,12 @@ pub enum FloorMode {
 /// Windows of one grid row, at most.
 const MAX_ACROSS: usize = 128;
 
+/// The widest window side the floor handles (the bench's grids: 8 to 32).
+const MAX_SIDE: usize = 64;
+
+/// The background of a run without a map.
+static NO_BACKGROUND: [i32; 4096] = [0; 4096];
+
 /// A streaming centre of gravity over a regular grid with known levels.
 pub struct Floor<'a> {
     grid: Grid,
@@ -97,8 +103,10 @@ pub struct Floor<'a> {
     levels: &'a [i32],
     /// Per window: the map bounds, as the engine keeps them.
     bounds: &'a [WindowBounds],
+    /// Per window of the current grid row: its sums, raw floor and level.
     sums: [Moments; MAX_ACROSS],
     floors: [u32; MAX_ACROSS],
+    row_levels: [i32; MAX_ACROSS],
 }
 
 impl<'a> Floor<'a> {
@@ -110,7 +118,8 @@ impl<'a> Floor<'a> {
         levels: &'a [i32],
         bounds: &'a [WindowBounds],
     ) -> Self {
-        assert!(grid.across <= MAX_ACROSS);
+        assert!(grid.across <= MAX_ACROSS && grid.side <= MAX_SIDE);
+        assert!(grid.width() <= NO_BACKGROUND.len());
         Floor {
             grid,
             calibration,
@@ -120,10 +129,17 @@ impl<'a> Floor<'a> {
             bounds,
             sums: [Moments::ZERO; MAX_ACROSS],
             floors: [0; MAX_ACROSS],
+            row_levels: [0; MAX_ACROSS],
         }
     }
 
     /// Camera row `y`; emits each window's result after its last row.
+    ///
+    /// Written as tight as the engine's row loop: the mode is decided once
+    /// a row, the windows' state is walked by iterators (no bounds checks),
+    /// the background is sliced once a row, and a hot segment's pixels are
+    /// visited by the engine's own pair-at-a-time loop
+    /// (`prefilter::for_each_at_least`: UQSUB16 on Cortex-M).
     #[inline(never)]
     pub fn push_row(&mut self, y: usize, row: &[u16], out: &mut impl FnMut(SubapertureResult)) {
         let (across, side, width) = (self.grid.across, self.grid.side, self.grid.width());
@@ -133,6 +149,7 @@ impl<'a> Floor<'a> {
             for sx in 0..across {
                 self.sums[sx] = Moments::ZERO;
                 let level = self.levels[first + sx];
+                self.row_levels[sx] = level;
                 // Strictly above L: the raw floor of L + 1.
                 self.floors[sx] = raw_floor(
                     &self.calibration,
@@ -141,53 +158,61 @@ impl<'a> Floor<'a> {
                 );
             }
         }
-        let background = self.calibration.background;
-        for sx in 0..across {
-            let segment = &row[sx * side..][..side];
-            let pixel = y * width + sx * side;
-            let level = self.levels[first + sx];
-            // A segment's flux fits 32 bits (at most 64 weights below 2^22);
-            // its first moment needs 64 (SMLAL on Cortex-M, one instruction).
-            let (mut f, mut fi) = (0i32, 0i64);
-            match self.mode {
-                FloorMode::Skip => {
-                    let floor = self.floors[sx];
+        let row = &row[..width];
+        let background = match self.calibration.background {
+            Some(b) => &b[y * width..][..width],
+            None => &NO_BACKGROUND[..width],
+        };
+        let windows = row
+            .chunks_exact(side)
+            .zip(background.chunks_exact(side))
+            .zip(self.sums[..across].iter_mut())
+            .zip(self.floors[..across].iter().zip(&self.row_levels[..across]));
+        match self.mode {
+            FloorMode::Skip => {
+                for (((segment, bg), sums), (&floor, &level)) in windows {
                     if floor != 0 && (floor >= FLOOR_NONE || !any_at_least(segment, floor as u16)) {
                         continue;
                     }
-                    for (i, &r) in segment.iter().enumerate() {
-                        if (r as u32) < floor {
-                            continue;
-                        }
-                        let b = background.map_or(0, |b| b[pixel + i]);
+                    // A segment's flux fits 32 bits (at most 64 weights
+                    // below 2^22); its first moment needs 64 (SMLAL on
+                    // Cortex-M, one instruction).
+                    let (mut f, mut fi) = (0i32, 0i64);
+                    for_each_at_least(segment, floor as u16, |i, r| {
+                        // SAFETY: i < segment.len() == bg.len().
+                        let b = unsafe { *bg.get_unchecked(i) };
                         let w = ((r as i32) << 4) - b - level;
                         if w > 0 {
                             f += w;
                             fi += w as i64 * i as i64;
                         }
-                    }
+                        true
+                    });
+                    sums.sum_w += f as i64;
+                    sums.sum_wi += fi;
+                    sums.sum_wj += j as i64 * f as i64;
                 }
-                FloorMode::CalibrateAll => {
-                    for (i, &r) in segment.iter().enumerate() {
-                        let b = background.map_or(0, |b| b[pixel + i]);
+            }
+            FloorMode::CalibrateAll => {
+                for (((segment, bg), sums), (_, &level)) in windows {
+                    let (mut f, mut fi) = (0i32, 0i64);
+                    for (i, (&r, &b)) in segment.iter().zip(bg).enumerate() {
                         let w = (((r as i32) << 4) - b - level).max(0);
                         f += w;
                         fi += w as i64 * i as i64;
                     }
-                }
-                FloorMode::AllPixels => {
-                    let sums = &mut self.sums[sx];
-                    for (i, &r) in segment.iter().enumerate() {
-                        let b = background.map_or(0, |b| b[pixel + i]);
-                        sums.add(((r as i32) << 4) - b, i as u16, j as u16);
-                    }
-                    continue;
+                    sums.sum_w += f as i64;
+                    sums.sum_wi += fi;
+                    sums.sum_wj += j as i64 * f as i64;
                 }
             }
-            let sums = &mut self.sums[sx];
-            sums.sum_w += f as i64;
-            sums.sum_wi += fi;
-            sums.sum_wj += j as i64 * f as i64;
+            FloorMode::AllPixels => {
+                for (((segment, bg), sums), _) in windows {
+                    for (i, (&r, &b)) in segment.iter().zip(bg).enumerate() {
+                        sums.add(((r as i32) << 4) - b, i as u16, j as u16);
+                    }
+                }
+            }
         }
         if j == side - 1 {
             for sx in 0..across {
