@@ -172,15 +172,12 @@ fn overlapping_and_unordered_windows() {
     }
 }
 
-/// A pool too small for every open window's preferred buffer gives each
-/// what it holds, down to the least: the results stay those of the
-/// reference (only speed changes), and the smallest pool compacts.
-#[test]
-fn a_smaller_pool_gives_smaller_buffers_and_the_same_results() {
+/// CANARY's camera (112x112 at `bit_depth`) and its 7x7 windows of 16x16.
+fn canary(bit_depth: u8) -> (Camera, Vec<SubapertureWindow>) {
     let camera = Camera {
         width: 112,
         height: 112,
-        bit_depth: 12,
+        bit_depth,
     };
     let grid = RegularGrid {
         x: 0,
@@ -192,7 +189,15 @@ fn a_smaller_pool_gives_smaller_buffers_and_the_same_results() {
         pitch_x: 16,
         pitch_y: 16,
     };
-    let windows: Vec<_> = grid.windows().collect();
+    (camera, grid.windows().collect())
+}
+
+/// A pool too small for every open window's preferred buffer gives each
+/// what it holds, down to the least: the results stay those of the
+/// reference (only speed changes), and the smallest pool compacts.
+#[test]
+fn a_smaller_pool_gives_smaller_buffers_and_the_same_results() {
+    let (camera, windows) = canary(12);
     let config = config(camera, &windows, SelectionRule::SubtractNext, 20);
     let frames: Vec<_> = (0..4).map(|seed| frame(camera, seed + 3)).collect();
     let mut reference = Reference::new(&config).unwrap();
@@ -246,22 +251,7 @@ fn small_memory_result(config: Config<'_>, size: MemorySize) -> Result<(), Confi
 
 #[test]
 fn configurations_too_large_for_the_memory_are_refused_with_the_need() {
-    let camera = Camera {
-        width: 112,
-        height: 112,
-        bit_depth: 16,
-    };
-    let grid = RegularGrid {
-        x: 0,
-        y: 0,
-        columns: 7,
-        rows: 7,
-        width: 16,
-        height: 16,
-        pitch_x: 16,
-        pitch_y: 16,
-    };
-    let windows: Vec<_> = grid.windows().collect();
+    let (camera, windows) = canary(16);
     let config = config(camera, &windows, SelectionRule::SubtractNext, 20);
     let enough = MemorySize {
         subapertures: 49,
