@@ -854,44 +854,38 @@ impl<'c, 'm> Engine<'c, 'm> {
 /// `to.copy_from_slice(from)`, eight pixels at a time when both are
 /// aligned alike (`prefilter::copy_words`), else a pixel at a time (the
 /// library's `memcpy` goes byte by byte on Cortex-M when the two are not
-/// aligned alike).
+/// aligned alike, and is a call even for the empty ends of a split).
 #[inline(always)]
 fn copy_pixels(from: &[u16], to: &mut [u16]) {
     let n = from.len().min(to.len());
-    if n >= 8 && (from.as_ptr() as usize | to.as_ptr() as usize) & 3 == 0 {
-        // The usual case, both word-aligned: whole words, then at most one
-        // pixel (the general path's splitting cost ~25 instructions a row).
-        // SAFETY: both are aligned to 4 and hold at least `n` pixels, i.e.
-        // `n / 2` words; any bits are a u32 and a pair of u16.
-        let (fw, tw) = unsafe {
-            (
-                core::slice::from_raw_parts(from.as_ptr() as *const u32, n / 2),
-                core::slice::from_raw_parts_mut(to.as_mut_ptr() as *mut u32, n / 2),
-            )
-        };
-        prefilter::copy_words(fw, tw);
-        if n & 1 != 0 {
-            to[n - 1] = from[n - 1];
-        }
-        return;
-    }
     let skew = (from.as_ptr() as usize ^ to.as_ptr() as usize) & 3;
-    if skew != 0 || from.len() < 8 {
+    if skew != 0 || n < 8 {
         for (t, f) in to.iter_mut().zip(from) {
             *t = *f;
         }
         return;
     }
-    // SAFETY: any bits are a u32 and a pair of u16; align_to splits both
-    // slices at the same place, since their addresses agree modulo 4.
-    let (fh, fw, ft) = unsafe { from.align_to::<u32>() };
-    let (th, tw, tt) = unsafe { to.align_to_mut::<u32>() };
-    // At most one pixel each side: a loop, not `copy_from_slice` (a call
-    // to `memcpy` even when empty, ~0.3 instructions a pixel on CANARY).
-    for (t, f) in th.iter_mut().zip(fh).chain(tt.iter_mut().zip(ft)) {
-        *t = *f;
+    // Aligned alike: one pixel brings both to a word boundary if they are
+    // not on one, then whole words and at most one pixel.
+    let first = (from.as_ptr() as usize & 2) / 2;
+    let words = (n - first) / 2;
+    if first == 1 {
+        to[0] = from[0];
     }
+    // SAFETY: from pixel `first` on both are aligned to 4 and hold at least
+    // `2 words` pixels (n >= first + 2 words); any bits are a u32 and a
+    // pair of u16.
+    let (fw, tw) = unsafe {
+        (
+            core::slice::from_raw_parts(from.as_ptr().add(first) as *const u32, words),
+            core::slice::from_raw_parts_mut(to.as_mut_ptr().add(first) as *mut u32, words),
+        )
+    };
     prefilter::copy_words(fw, tw);
+    let last = first + 2 * words;
+    if last < n {
+        to[last] = from[last];
+    }
 }
 
 /// Counts the front entries equal to the hint that arrived since the last
