@@ -794,66 +794,65 @@ impl<'c, 'm> Engine<'c, 'm> {
             } else {
                 (0, 0)
             };
-            // Field by field, in place: as one struct literal the compiler
-            // built part of it on the stack and copied it with a byte-wise
-            // `memcpy` call (about 260 instructions a window on Cortex-M4).
-            let window = &mut self.memory.open[slot as usize];
-            window.index = index as u16;
-            window.x = w.x;
-            window.end_column = w.end_column();
-            window.y = w.y;
-            window.last_row = w.last_row();
-            window.width = w.width;
-            window.height = w.height;
-            window.base = (slot as usize * self.stride) as u32;
-            window.finished = false;
-            window.n = n;
-            window.capacity = capacity;
-            window.front = 0;
-            window.back = 0;
-            window.hint = hint;
-            window.hint_ties = Ties::NONE;
-            window.low = low;
-            window.low_ties = Ties::NONE;
-            window.strict = false;
-            window.admit = low;
-            window.lanes = 0;
-            window.at_hint = 0;
-            window.counted = 0;
-            window.floor = 0;
-            window.rescan = false;
-            window.bounds = state.bounds;
-            window.moments = Moments::ZERO;
-            // Every field is set above: this pattern names them all, so a
-            // new field fails to compile here until it is.
+            // Field by field, in place, through a pattern that names every
+            // field (so a new one fails to compile here until it is set): as
+            // one struct literal the compiler built part of it on the stack
+            // and copied it with a byte-wise `memcpy` call (~200
+            // instructions a window on Cortex-M4).
             let OpenWindow {
-                index: _,
-                x: _,
-                end_column: _,
-                y: _,
-                last_row: _,
-                width: _,
-                height: _,
-                base: _,
-                finished: _,
-                n: _,
-                capacity: _,
-                front: _,
-                back: _,
-                hint: _,
-                hint_ties: _,
-                low: _,
-                low_ties: _,
-                strict: _,
-                admit: _,
-                lanes: _,
-                at_hint: _,
-                counted: _,
-                floor: _,
-                rescan: _,
-                bounds: _,
-                moments: _,
-            } = window;
+                index: window_index,
+                x,
+                end_column,
+                y,
+                last_row,
+                width,
+                height,
+                base,
+                finished,
+                n: window_n,
+                capacity: window_capacity,
+                front,
+                back,
+                hint: window_hint,
+                hint_ties,
+                low: window_low,
+                low_ties,
+                strict,
+                admit,
+                lanes,
+                at_hint,
+                counted,
+                floor,
+                rescan,
+                bounds,
+                moments,
+            } = &mut self.memory.open[slot as usize];
+            *window_index = index as u16;
+            *x = w.x;
+            *end_column = w.end_column();
+            *y = w.y;
+            *last_row = w.last_row();
+            *width = w.width;
+            *height = w.height;
+            *base = (slot as usize * self.stride) as u32;
+            *finished = false;
+            *window_n = n;
+            *window_capacity = capacity;
+            *front = 0;
+            *back = 0;
+            *window_hint = hint;
+            *hint_ties = Ties::NONE;
+            *window_low = low;
+            *low_ties = Ties::NONE;
+            *strict = false;
+            *admit = low;
+            *lanes = 0;
+            *at_hint = 0;
+            *counted = 0;
+            *floor = 0;
+            *rescan = false;
+            *bounds = state.bounds;
+            *moments = Moments::ZERO;
             // A window without selection keeps floor 0 (every segment to
             // `segment_rest`).
             if capacity > 0 {
