@@ -255,6 +255,9 @@ impl<'c, 'm> Engine<'c, 'm> {
     ) -> Result<(), FrameError> {
         let width = self.config.camera.width;
         while !pixels.is_empty() {
+            if self.row == 0 && self.column == 0 && self.next_to_open == 0 {
+                self.open_windows_of_row();
+            }
             let take = pixels.len().min((width - self.column) as usize);
             let (part, rest) = pixels.split_at(take);
             if self.history_rows > 0 {
@@ -758,17 +761,25 @@ impl<'c, 'm> Engine<'c, 'm> {
 
     fn start_frame(&mut self) {
         let open = self.memory.capacity().open_windows;
-        for (k, f) in self.memory.free[..open].iter_mut().enumerate() {
-            *f = (open - 1 - k) as u16;
+        // After a whole frame every window has closed and its slot is free
+        // again (in another order, which only moves candidate buffers in
+        // the pool); after an aborted one, or before the first, the slots
+        // are listed afresh.
+        if self.free_len != open {
+            for (k, f) in self.memory.free[..open].iter_mut().enumerate() {
+                *f = (open - 1 - k) as u16;
+            }
+            self.free_len = open;
         }
-        self.free_len = open;
         self.active_len = 0;
         self.cursor = 0;
         self.finished_in_row = false;
         self.row = 0;
         self.column = 0;
         self.next_to_open = 0;
-        self.open_windows_of_row();
+        // The first row's windows open when its first pixel arrives
+        // (`push_with`), not here: after a frame's last pixel the engine
+        // only emits results, so the work that follows it is short.
     }
 
     /// Opens the windows whose first row is the current row.
