@@ -18,10 +18,10 @@
 
 use brightpix_firmware::engine::calibrate::{raw_floor, WindowBounds, FLOOR_NONE};
 use brightpix_firmware::engine::centroid::{Centroider, Moments};
-use brightpix_firmware::engine::prefilter::{any_at_least, for_each_at_least};
 use brightpix_firmware::engine::SubapertureResult;
 use brightpix_protocol::Calibration;
 
+use crate::floor_row::{floor_row, FloorRow, FloorWindow};
 use crate::frames::Grid;
 
 /// The memory floor: the sum of a row's pixels, reading each once. On
@@ -103,10 +103,18 @@ pub struct Floor<'a> {
     levels: &'a [i32],
     /// Per window: the map bounds, as the engine keeps them.
     bounds: &'a [WindowBounds],
-    /// Per window of the current grid row: its sums, raw floor and level.
+    /// Per window of the current grid row: its sums, raw floor and level
+    /// (the other modes).
     sums: [Moments; MAX_ACROSS],
     floors: [u32; MAX_ACROSS],
     row_levels: [i32; MAX_ACROSS],
+    /// Per window of the current grid row, as the row kernel keeps them
+    /// ([`FloorMode::Skip`]).
+    kernel: [FloorWindow; MAX_ACROSS],
+    /// Some window of the current grid row has raw floor 0 (every pixel
+    /// can pass, which the kernel's lanes cannot say): it is summed
+    /// pixel by pixel after the kernel, which skips it.
+    any_floor_zero: bool,
 }
 
 impl<'a> Floor<'a> {
@@ -130,16 +138,18 @@ impl<'a> Floor<'a> {
             sums: [Moments::ZERO; MAX_ACROSS],
             floors: [0; MAX_ACROSS],
             row_levels: [0; MAX_ACROSS],
+            kernel: [FloorWindow::default(); MAX_ACROSS],
+            any_floor_zero: false,
         }
     }
 
     /// Camera row `y`; emits each window's result after its last row.
     ///
-    /// Written as tight as the engine's row loop: the mode is decided once
-    /// a row, the windows' state is walked by iterators (no bounds checks),
-    /// the background is sliced once a row, and a hot segment's pixels are
-    /// visited by the engine's own pair-at-a-time loop
-    /// (`prefilter::for_each_at_least`: UQSUB16 on Cortex-M).
+    /// [`FloorMode::Skip`] runs the row kernel (`floor_row`: on Cortex-M
+    /// one assembly routine for the whole row, everything in registers, a
+    /// pair of words in seven instructions when no pixel passes); the other
+    /// modes, which only put the pre-filter's gain in figures, are plain
+    /// loops.
     #[inline(never)]
     pub fn push_row(&mut self, y: usize, row: &[u16], out: &mut impl FnMut(SubapertureResult)) {
         let (across, side, width) = (self.grid.across, self.grid.side, self.grid.width());
@@ -156,7 +166,18 @@ impl<'a> Floor<'a> {
                     self.bounds[first + sx],
                     level.saturating_add(1),
                 );
+                let floor = self.floors[sx];
+                self.kernel[sx] = FloorWindow {
+                    lanes: if floor == 0 || floor >= FLOOR_NONE {
+                        u32::MAX
+                    } else {
+                        (floor - 1) * 0x0001_0001
+                    },
+                    level,
+                    ..FloorWindow::default()
+                };
             }
+            self.any_floor_zero = self.floors[..across].contains(&0);
         }
         let row = &row[..width];
         let background = match self.calibration.background {
@@ -169,30 +190,7 @@ impl<'a> Floor<'a> {
             .zip(self.sums[..across].iter_mut())
             .zip(self.floors[..across].iter().zip(&self.row_levels[..across]));
         match self.mode {
-            FloorMode::Skip => {
-                for (((segment, bg), sums), (&floor, &level)) in windows {
-                    if floor != 0 && (floor >= FLOOR_NONE || !any_at_least(segment, floor as u16)) {
-                        continue;
-                    }
-                    // A segment's flux fits 32 bits (at most 64 weights
-                    // below 2^22); its first moment needs 64 (SMLAL on
-                    // Cortex-M, one instruction).
-                    let (mut f, mut fi) = (0i32, 0i64);
-                    for_each_at_least(segment, floor as u16, |i, r| {
-                        // SAFETY: i < segment.len() == bg.len().
-                        let b = unsafe { *bg.get_unchecked(i) };
-                        let w = ((r as i32) << 4) - b - level;
-                        if w > 0 {
-                            f += w;
-                            fi += w as i64 * i as i64;
-                        }
-                        true
-                    });
-                    sums.sum_w += f as i64;
-                    sums.sum_wi += fi;
-                    sums.sum_wj += j as i64 * f as i64;
-                }
-            }
+            FloorMode::Skip => self.skip_row(y, j, row),
             FloorMode::CalibrateAll => {
                 for (((segment, bg), sums), (_, &level)) in windows {
                     let (mut f, mut fi) = (0i32, 0i64);
@@ -216,12 +214,58 @@ impl<'a> Floor<'a> {
         }
         if j == side - 1 {
             for sx in 0..across {
-                out(self.centroider.result(
-                    (first + sx) as u16,
-                    self.sums[sx],
-                    side as u16,
-                    side as u16,
-                ));
+                let moments = if self.mode == FloorMode::Skip {
+                    let k = &self.kernel[sx];
+                    Moments {
+                        sum_w: k.sum_w as i64,
+                        sum_wi: k.sum_wcol.wrapping_sub((sx * side) as u64 * k.sum_w) as i64,
+                        sum_wj: k.sum_wj as i64,
+                    }
+                } else {
+                    self.sums[sx]
+                };
+                out(self
+                    .centroider
+                    .result((first + sx) as u16, moments, side as u16, side as u16));
+            }
+        }
+    }
+
+    /// One camera row of [`FloorMode::Skip`]: the kernel, then the windows
+    /// it skipped for a raw floor of 0.
+    #[inline(always)]
+    fn skip_row(&mut self, y: usize, j: usize, row: &[u16]) {
+        let (across, side, width) = (self.grid.across, self.grid.side, self.grid.width());
+        let background = self
+            .calibration
+            .background
+            .map(|b| &b[y * width..][..width]);
+        let windows = &mut self.kernel[..across];
+        let args = FloorRow::new(row, background, windows, side, j);
+        // SAFETY: the arguments are made from live slices of the row, its
+        // background and the windows, as FloorRow::new requires.
+        unsafe {
+            if background.is_some() {
+                floor_row::<true>(&args)
+            } else {
+                floor_row::<false>(&args)
+            }
+        }
+        if self.any_floor_zero {
+            for (sx, window) in windows.iter_mut().enumerate() {
+                if self.floors[sx] != 0 {
+                    continue;
+                }
+                for i in 0..side {
+                    let column = sx * side + i;
+                    let b = background.map_or(0, |b| b[column]);
+                    let w = ((row[column] as i32) << 4) - b - window.level;
+                    if w > 0 {
+                        window.sum_w += w as u64;
+                        window.sum_wcol += w as u64 * column as u64;
+                        window.sum_wj += w as u64 * j as u64;
+                    }
+                }
             }
         }
     }

@@ -32,6 +32,7 @@
 #![no_main]
 
 mod floor;
+mod floor_row;
 mod frames;
 mod meter;
 mod sort;
@@ -140,6 +141,61 @@ fn dsp_selftest() {
         }
     }
     admit_selftest(&mut rng);
+    floor_row_selftest(&mut rng);
+}
+
+/// The floor's row kernel against its portable twin: random rows, levels,
+/// raw floors and backgrounds, segments of an odd and an even number of
+/// words, with and without a background map.
+fn floor_row_selftest(rng: &mut Rng) {
+    use floor_row::{floor_row, floor_row_portable, FloorRow, FloorWindow};
+    let mut row = Aligned([0u16; 96]);
+    let mut background = [0i32; 96];
+    for round in 0..600 {
+        let side = [2, 4, 6, 10, 16, 32][round % 6];
+        let across = 1 + round % (96 / side).min(7);
+        let top = 1 + (round % 5) * 13_000;
+        for r in row.0.iter_mut() {
+            *r = (rng.next() * top as f32) as u16;
+        }
+        for b in background.iter_mut() {
+            *b = ((rng.next() - 0.3) * 16.0 * top as f32) as i32;
+        }
+        let mut windows = [FloorWindow::default(); 7];
+        for w in windows.iter_mut() {
+            let floor = (rng.next() * top as f32) as u32;
+            *w = FloorWindow {
+                lanes: if floor == 0 || round % 11 == 0 {
+                    u32::MAX
+                } else {
+                    (floor - 1).min(65_534) * 0x0001_0001
+                },
+                level: ((rng.next() - 0.2) * 16.0 * top as f32) as i32,
+                sum_w: round as u64,
+                sum_wcol: 3 * round as u64,
+                sum_wj: 5 * round as u64,
+            };
+        }
+        let mut twin = windows;
+        let width = across * side;
+        let map = (round % 2 == 0).then_some(&background[..width]);
+        let j = round % 16;
+        let a = FloorRow::new(&row.0[..width], map, &mut windows[..across], side, j);
+        let b = FloorRow::new(&row.0[..width], map, &mut twin[..across], side, j);
+        // SAFETY: made by FloorRow::new from live slices.
+        unsafe {
+            if map.is_some() {
+                floor_row::<true>(&a);
+                floor_row_portable::<true>(&b);
+            } else {
+                floor_row::<false>(&a);
+                floor_row_portable::<false>(&b);
+            }
+        }
+        if windows != twin {
+            fail("the floor's row kernel differs from its portable twin");
+        }
+    }
 }
 
 /// The hot loop's assembly (`engine::scan::admit_words`, background map
