@@ -1124,7 +1124,6 @@ fn reborrow<'a>(memory: &'a mut EngineMemory<'_>) -> EngineMemory<'a> {
         order: memory.order,
         subapertures: memory.subapertures,
         open: memory.open,
-        active: memory.active,
         free: memory.free,
         entries: memory.entries,
         history: memory.history,

@@ -5,7 +5,7 @@
 //!   `size_of::<SubapertureState>()` (level filter, seed, map bounds);
 //! - per simultaneously open window (a window is open from its first row to
 //!   its last, so a regular grid has one grid row of windows open):
-//!   `size_of::<OpenWindow>()` + 4 bytes (active list, free list);
+//!   `size_of::<OpenWindow>()` + 2 bytes (free list);
 //! - per open window, a candidate buffer of `stride` entries of 8 bytes
 //!   (value + position): the largest `select::preferred_capacity` over the
 //!   windows (about `4 (N + 1) + 64`, at most the window's pixels; 0
@@ -34,11 +34,10 @@ pub struct EngineMemory<'m> {
     pub order: &'m mut [u16],
     /// One per sub-aperture.
     pub subapertures: &'m mut [SubapertureState],
-    /// One per simultaneously open window.
+    /// One per simultaneously open window: the open windows, by first
+    /// column.
     pub open: &'m mut [OpenWindow],
-    /// Same length as `open`.
-    pub active: &'m mut [u16],
-    /// Same length as `open`.
+    /// Same length as `open`: the free candidate buffers.
     pub free: &'m mut [u16],
     /// Candidate buffers.
     pub entries: &'m mut [Entry],
@@ -55,7 +54,7 @@ impl EngineMemory<'_> {
     pub fn capacity(&self) -> MemorySize {
         MemorySize {
             subapertures: self.order.len().min(self.subapertures.len()),
-            open_windows: self.open.len().min(self.active.len()).min(self.free.len()),
+            open_windows: self.open.len().min(self.free.len()),
             pool_entries: self.entries.len(),
             history_pixels: self.history.len(),
             scratch_entries: self.scratch.len().min(self.rescan.len()),
@@ -77,7 +76,7 @@ impl MemorySize {
     /// Bytes these sizes take.
     pub const fn bytes(&self) -> usize {
         self.subapertures * (2 + core::mem::size_of::<SubapertureState>())
-            + self.open_windows * (core::mem::size_of::<OpenWindow>() + 4)
+            + self.open_windows * (core::mem::size_of::<OpenWindow>() + 2)
             + self.pool_entries * 8
             + self.history_pixels * 2
             + self.scratch_entries * 12
@@ -97,7 +96,6 @@ pub struct StaticEngineMemory<
     order: [u16; SUBAPERTURES],
     subapertures: [SubapertureState; SUBAPERTURES],
     open: [OpenWindow; OPEN],
-    active: [u16; OPEN],
     free: [u16; OPEN],
     entries: [Entry; ENTRIES],
     history: [u16; HISTORY],
@@ -131,7 +129,6 @@ impl<
             order: [0; SUBAPERTURES],
             subapertures: [SubapertureState::RESET; SUBAPERTURES],
             open: [OpenWindow::CLOSED; OPEN],
-            active: [0; OPEN],
             free: [0; OPEN],
             entries: [Entry::ZERO; ENTRIES],
             history: [0; HISTORY],
@@ -145,7 +142,6 @@ impl<
             order: &mut self.order,
             subapertures: &mut self.subapertures,
             open: &mut self.open,
-            active: &mut self.active,
             free: &mut self.free,
             entries: &mut self.entries,
             history: &mut self.history,

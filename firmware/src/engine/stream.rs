@@ -4,27 +4,32 @@
 //!
 //! Windows are opened at their first row (taking a candidate buffer from the
 //! pool) and closed after their last, so only the windows crossing the
-//! current row hold state. The open windows are kept in a list sorted by
-//! first column, and a cursor skips those the current row has already
-//! passed, so a chunk touches only the windows it overlaps, whatever its
-//! length.
+//! current row hold state. The open windows are kept in the engine's memory
+//! in order of first column, and a cursor skips those the current row has
+//! already passed, so a chunk touches only the windows it overlaps,
+//! whatever its length.
 //!
-//! For each window's run of pixels in a row (a *segment*), the pre-filter
-//! first asks whether any raw pixel can reach the window's admission
-//! threshold; usually none can, and the segment costs a few instructions per
-//! pixel pair. Otherwise the pixels that can are calibrated and become
-//! candidates (see `select.rs`). Pixels that belong to no window are only
-//! checked against the camera's bit depth.
+//! A whole camera row goes to the row kernel (`scan::row`): every open
+//! window's run of pixels in the row (its *segment*) in one call, each pair
+//! of raw pixels tested against the window's raw floor with one
+//! instruction, and the pixels that can reach its admission threshold
+//! calibrated and made candidates (see `select.rs`). The kernel stops at a
+//! window that needs more than that (its candidates now prove the cutoff
+//! is at or above the hint, or it is short of room: [`Engine::attend`]).
+//! What the kernel does not take (a chunk that ends inside a window,
+//! windows without selection or awaiting a rescan, odd columns) takes the
+//! general path, a window at a time. Pixels that belong to no window are
+//! only checked against the camera's bit depth.
 
 use super::calibrate::{self, raw_floor, Calibrator, Steps, WindowBounds, With};
 use super::centroid::{Centroider, Moments, SubapertureResult};
 use super::memory::{EngineMemory, MemorySize};
 use super::plan::plan;
 use super::prefilter;
-use super::scan::{admit_words, scan, Segment, Stop, TierEnds, WordRun};
+use super::scan::{self, scan, RowScan, RowStop, Segment, Stop};
 use super::select::{self, pack, preferred_capacity, Buffer, Cut, Entry, Tiers, Ties, WindowRule};
 use super::window::{OpenWindow, SegmentPath, SubapertureState};
-use brightpix_protocol::{Calibration, Config, ConfigError, MAX_WINDOW_SIDE};
+use brightpix_protocol::{Calibration, Config, ConfigError, SelectionRule, MAX_WINDOW_SIDE};
 
 /// Where results go.
 pub trait OutputSink {
@@ -80,6 +85,9 @@ pub struct Engine<'c, 'm> {
     calibrator: Calibrator<'c>,
     centroider: Centroider<'c>,
     memory: EngineMemory<'m>,
+    /// The address of the candidate pool's first entry: a window's buffer
+    /// is `stride` entries from `pool + number * stride`.
+    pool: usize,
     /// Candidate entries per open window.
     stride: usize,
     /// Rows in the history ring (0: no window selects, none kept).
@@ -89,15 +97,24 @@ pub struct Engine<'c, 'm> {
     column: u16,
     /// Next window (in `memory.order`) to open.
     next_to_open: usize,
-    active_len: usize,
+    /// Open windows: `memory.open[..open_len]`, by first column.
+    open_len: usize,
     free_len: usize,
-    /// Active windows before this one are done with the current row.
+    /// Open windows before this one are done with the current row.
     cursor: usize,
     /// Some window's last pixel arrived in the current row.
     finished_in_row: bool,
-    /// The active windows do not overlap (each ends at or before the next
+    /// The open windows do not overlap (each ends at or before the next
     /// one's first column): a whole row can take [`Self::push_whole_row`].
     disjoint: bool,
+    /// The open windows cover the camera row with no gap: no pixel of a
+    /// row lies outside a window (so the row kernel, which checks only the
+    /// windows' pixels against the bit depth, checks them all).
+    gapless: bool,
+    /// Open windows the row kernel skips (not `kernel_ready`).
+    not_ready: usize,
+    /// The earliest last row of an open window.
+    next_last_row: u16,
     frames: u32,
     needed: MemorySize,
     stats: EngineStats,
@@ -124,7 +141,7 @@ impl<'c, 'm> Engine<'c, 'm> {
             &config,
             available,
             memory.order,
-            &mut memory.active[..available.open_windows],
+            &mut memory.free[..available.open_windows],
         )?;
         let maps = config.calibration.background.is_some() || config.calibration.gain.is_some();
         for (state, window) in memory.subapertures.iter_mut().zip(config.windows) {
@@ -134,22 +151,29 @@ impl<'c, 'm> Engine<'c, 'm> {
                 WindowBounds::NONE
             };
         }
+        let pool = memory.entries.as_mut_ptr() as usize;
         let mut engine = Engine {
             config,
             calibrator: Calibrator::new(config.calibration),
             centroider: Centroider::new(config.centroid),
             memory,
+            pool,
             stride: plan.stride,
             history_rows: plan.history_rows,
             max_raw: config.camera.max_raw(),
             row: 0,
             column: 0,
             next_to_open: 0,
-            active_len: 0,
-            free_len: 0,
+            open_len: 0,
+            // Not the open windows' count: `start_frame` lists the free
+            // buffers afresh.
+            free_len: usize::MAX,
             cursor: 0,
             finished_in_row: false,
             disjoint: true,
+            gapless: false,
+            not_ready: 0,
+            next_last_row: u16::MAX,
             frames: 0,
             needed: plan.needed,
             stats: EngineStats::default(),
@@ -258,8 +282,7 @@ impl<'c, 'm> Engine<'c, 'm> {
             // A frame's first row opens its windows here, when its first
             // pixel arrives (`start_frame` does not), so that the work after
             // a frame's last pixel is only its results; the other rows open
-            // theirs at the end of the row before (`end_row`). Opening every
-            // row here instead measured 0.8% slower on Cortex-M4.
+            // theirs at the end of the row before (`end_row`).
             if self.row == 0 && self.column == 0 && self.next_to_open == 0 {
                 self.open_windows_of_row();
             }
@@ -270,7 +293,7 @@ impl<'c, 'm> Engine<'c, 'm> {
                     (self.row as usize % self.history_rows) * width as usize + self.column as usize;
                 copy_pixels(part, &mut self.memory.history[at..at + take]);
             }
-            let pushed = if take == width as usize && self.disjoint {
+            let pushed = if take == width as usize {
                 self.push_whole_row::<S, CHECK>(part, sink)
             } else {
                 self.push_row_part::<S, CHECK>(part, sink)
@@ -293,47 +316,137 @@ impl<'c, 'm> Engine<'c, 'm> {
         Ok(())
     }
 
-    /// A whole row when the active windows do not overlap: the common case,
-    /// without [`Self::push_row_part`]'s bookkeeping for chunks that start
-    /// or end inside a window. Same contract: on a pixel out of range, its
-    /// column; the windows ending before it have been emitted, no other
-    /// (windows are visited left to right and each gap is checked before
-    /// the window after it).
+    /// A whole camera row. On a pixel out of range, returns its column; the
+    /// windows whose last pixel came before it have been emitted, no other.
+    ///
+    /// Windows are visited in column order: each run of `kernel_ready` ones
+    /// by the row kernel, the others on the general path. That needs a
+    /// word-aligned row, and below 16 bits (where the first pixel out of
+    /// range must be found in raster order) every pixel of the row in a
+    /// window, since only windows' pixels are checked.
     #[inline(always)]
     fn push_whole_row<S: Steps, const CHECK: bool>(
         &mut self,
         row_pixels: &[u16],
         sink: &mut impl OutputSink,
     ) -> Result<(), usize> {
+        let aligned = row_pixels.as_ptr() as usize & 3 == 0;
+        if !aligned || (CHECK && !self.gapless) {
+            return self.push_whole_row_general::<S, CHECK>(row_pixels, sink);
+        }
+        let row = self.row;
+        let width = row_pixels.len();
+        let at = row as usize * width;
+        let c = &self.config.calibration;
+        // SAFETY (the maps' rows): a validated configuration's maps hold a
+        // value per camera pixel.
+        let background = c
+            .background
+            .map(|b| unsafe { b.get_unchecked(at..at + width) });
+        let gain = c.gain.map(|g| unsafe { g.get_unchecked(at..at + width) });
+        let open = &mut self.memory.open[..self.open_len];
+        let mut args = RowScan::new(
+            row_pixels,
+            row,
+            background,
+            gain,
+            c.threshold,
+            open,
+            self.max_raw,
+        );
+        let first = args.first;
+        const SIZE: usize = core::mem::size_of::<OpenWindow>();
+        let mut k = 0;
+        while k < self.open_len {
+            let ready = |w: &OpenWindow| w.segment_start != w.segment_end;
+            if !ready(&self.memory.open[k]) {
+                let w = &self.memory.open[k];
+                let (x, end, y) = (w.x as usize, w.end_column as usize, w.y);
+                if let Err(b) = self.segment::<S, CHECK>(k, &row_pixels[x..end], at + x, 0, row - y)
+                {
+                    self.finish_before(k, sink);
+                    return Err(x + b);
+                }
+                k += 1;
+                continue;
+            }
+            // A run of ready windows (none becomes ready or not before the
+            // kernel has passed it).
+            let mut end = k + 1;
+            if self.not_ready > 0 {
+                while end < self.open_len && ready(&self.memory.open[end]) {
+                    end += 1;
+                }
+            } else {
+                end = self.open_len;
+            }
+            args.first = first + k * SIZE;
+            args.end = first + end * SIZE;
+            loop {
+                // SAFETY: the arguments are made from the row, its maps and
+                // the open windows; every window of the run is
+                // `kernel_ready`: word-aligned in this aligned row, with
+                // room for a segment.
+                match unsafe { scan::row::<S, CHECK>(&mut args) } {
+                    RowStop::Done => break,
+                    RowStop::Attention(address) => {
+                        self.attend((address - first) / SIZE);
+                        args.first = address + SIZE;
+                    }
+                    RowStop::OutOfRange { window, pixel } => {
+                        self.finish_before((window - first) / SIZE, sink);
+                        return Err((pixel - row_pixels.as_ptr() as usize) / 2);
+                    }
+                }
+            }
+            k = end;
+        }
+        if row == self.next_last_row {
+            for k in 0..self.open_len {
+                if self.memory.open[k].last_row == row {
+                    self.finish(k, sink);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// A pixel out of range in window `k`'s segment of a gapless row: the
+    /// windows before it that end in this row are complete.
+    #[cold]
+    fn finish_before(&mut self, k: usize, sink: &mut impl OutputSink) {
+        for j in 0..k {
+            if self.memory.open[j].last_row == self.row {
+                self.finish(j, sink);
+            }
+        }
+    }
+
+    /// [`push_whole_row`](Self::push_whole_row) a window at a time, on the
+    /// general path: for rows the kernel cannot take. Windows are visited
+    /// left to right and each gap is checked before the window after it.
+    fn push_whole_row_general<S: Steps, const CHECK: bool>(
+        &mut self,
+        row_pixels: &[u16],
+        sink: &mut impl OutputSink,
+    ) -> Result<(), usize> {
+        if !self.disjoint {
+            return self.push_row_part::<S, CHECK>(row_pixels, sink);
+        }
         let row = self.row;
         let row_offset = row as usize * row_pixels.len();
         let mut checked = 0;
-        for k in 0..self.active_len {
-            // SAFETY (the three unchecked indexings, the loop's bounds checks
-            // being a tenth of its instructions): `active_len` is at most the
-            // active list's length and every active entry is a slot of
-            // `open` (`open_windows_of_row`); a window lies inside the
-            // camera (`Config::validate`) and `row_pixels` is a whole row.
-            let slot = unsafe { *self.memory.active.get_unchecked(k) } as usize;
-            let window = unsafe { self.memory.open.get_unchecked(slot) };
+        for k in 0..self.open_len {
+            let window = &self.memory.open[k];
             let (x, end) = (window.x as usize, window.end_column as usize);
+            let (last, y) = (row == window.last_row, window.y);
             if CHECK && x > checked {
                 check_range(&row_pixels[checked..x], self.max_raw).map_err(|b| checked + b)?;
             }
-            let raw = unsafe { row_pixels.get_unchecked(x..end) };
-            // Most segments: a selecting window whose pre-filter rejects the
-            // whole segment (`floor` is capped so that an out-of-range pixel
-            // is never rejected, and 0 for the windows `segment_rest` takes).
-            let last = row == window.last_row;
-            let (pixel, j) = (row_offset + x, row - window.y);
-            match window.path(raw) {
-                SegmentPath::Rejected => Ok(()),
-                SegmentPath::Candidates => self.hot_segment::<S, CHECK>(slot, raw, pixel, 0, j),
-                SegmentPath::General => self.segment_rest::<S, CHECK>(slot, raw, pixel, 0, j),
-            }
-            .map_err(|b| x + b)?;
+            self.segment::<S, CHECK>(k, &row_pixels[x..end], row_offset + x, 0, row - y)
+                .map_err(|b| x + b)?;
             if last {
-                self.finish(slot, sink);
+                self.finish(k, sink);
             }
             checked = end;
         }
@@ -356,7 +469,6 @@ impl<'c, 'm> Engine<'c, 'm> {
     /// gap, or the finding window's own segment. The part is then cut at
     /// `c`, and the remaining windows see only their pixels before it: those
     /// that end there are still emitted, as they must be.
-    #[inline(always)]
     fn push_row_part<S: Steps, const CHECK: bool>(
         &mut self,
         part: &[u16],
@@ -370,9 +482,8 @@ impl<'c, 'm> Engine<'c, 'm> {
         // Columns checked against the bit depth so far.
         let mut checked = start;
         let mut k = self.cursor;
-        while k < self.active_len {
-            let slot = self.memory.active[k] as usize;
-            let window = &self.memory.open[slot];
+        while k < self.open_len {
+            let window = &self.memory.open[k];
             let (x, end_column, y, last_row) =
                 (window.x, window.end_column, window.y, window.last_row);
             if x >= end {
@@ -393,7 +504,7 @@ impl<'c, 'm> Engine<'c, 'm> {
             if from < to {
                 let at = (from - start) as usize;
                 let checked_segment = self.segment::<S, CHECK>(
-                    slot,
+                    k,
                     &part[at..(to - start) as usize],
                     row_offset + from as usize,
                     from - x,
@@ -402,7 +513,7 @@ impl<'c, 'm> Engine<'c, 'm> {
                 match checked_segment {
                     Ok(()) => {
                         if to == end_column && row == last_row {
-                            self.finish(slot, sink);
+                            self.finish(k, sink);
                         }
                     }
                     Err(b) => {
@@ -426,24 +537,23 @@ impl<'c, 'm> Engine<'c, 'm> {
         bad.map_or(Ok(()), Err)
     }
 
-    /// One window's pixels of the current row: columns `i0 ..` of its row
-    /// `j`, `pixel` the row-major index of the first. Returns the offset of
-    /// a pixel out of range.
+    /// One window's pixels of the current row on the general path: columns
+    /// `i0 ..` of its row `j`, `pixel` the row-major index of the first.
+    /// Returns the offset of a pixel out of range.
     #[inline(always)]
     fn segment<S: Steps, const CHECK: bool>(
         &mut self,
-        slot: usize,
+        k: usize,
         raw: &[u16],
         pixel: usize,
         i0: u16,
         j: u16,
     ) -> Result<(), usize> {
-        // The common case first, in as few instructions as it takes: a
-        // selecting window whose segment the pre-filter rejects whole.
-        match self.memory.open[slot].path(raw) {
+        match self.memory.open[k].path(raw) {
             SegmentPath::Rejected => Ok(()),
-            SegmentPath::Candidates => self.hot_segment::<S, CHECK>(slot, raw, pixel, i0, j),
-            SegmentPath::General => self.segment_rest::<S, CHECK>(slot, raw, pixel, i0, j),
+            SegmentPath::Candidates | SegmentPath::General => {
+                self.segment_rest::<S, CHECK>(k, raw, pixel, i0, j)
+            }
         }
     }
 
@@ -452,14 +562,14 @@ impl<'c, 'm> Engine<'c, 'm> {
     #[inline(never)]
     fn segment_rest<S: Steps, const CHECK: bool>(
         &mut self,
-        slot: usize,
+        k: usize,
         raw: &[u16],
         pixel: usize,
         i0: u16,
         j: u16,
     ) -> Result<(), usize> {
         let memory = &mut self.memory;
-        let window = &mut memory.open[slot];
+        let window = &mut memory.open[k];
         if window.capacity == 0 {
             // No selection: every pixel weighs its value.
             if CHECK {
@@ -481,12 +591,9 @@ impl<'c, 'm> Engine<'c, 'm> {
         // configuration).
         let (background, gain, fixed) =
             unsafe { calibrate::run_maps::<S>(&self.config.calibration, pixel, raw.len()) };
-        let base = window.base as usize;
-        let capacity = window.capacity as usize;
-        let entries = &mut memory.entries[base..base + capacity];
         let max_raw = self.max_raw;
         let mut start = 0;
-        loop {
+        let outcome = loop {
             let segment = Segment {
                 raw: &raw[start..],
                 start,
@@ -496,108 +603,69 @@ impl<'c, 'm> Engine<'c, 'm> {
                 base: pack(i0, j),
                 max_raw,
             };
-            let (k, entry) = match scan::<S, CHECK>(window, entries, &segment) {
-                Stop::End => break,
+            let (k, entry) = match scan::<S, CHECK>(window, &segment) {
+                Stop::End => break Ok(()),
                 Stop::OutOfRange(k) => return Err(k),
                 Stop::Full { k, entry } => (k, entry),
             };
             // Full: drop the back tier if the front proves it useless, else
             // raise `low` to the cutoff so far; then place the pixel again.
             self.stats.compactions = self.stats.compactions.wrapping_add(1);
-            if !make_room(window, entries, &self.config, memory.scratch) {
+            if !make_room(window, &self.config, memory.scratch) {
                 window.rescan = true;
                 window.floor = 0;
-                return if CHECK {
+                break if CHECK {
                     check_range(&raw[k + 1..], max_raw).map_err(|b| k + 1 + b)
                 } else {
                     Ok(())
                 };
             }
             update_admission(window, &self.config.calibration, max_raw);
-            place(window, entries, entry);
+            place(window, entry);
             start = k + 1;
+        };
+        if !window.rescan {
+            raise_to_hint(window, &self.config, max_raw);
         }
-        raise_to_hint(window, entries, &self.config, max_raw);
-        Ok(())
+        window.attention = attention(window, self.config.selection.rule);
+        self.refresh_ready(k);
+        outcome
     }
 
-    /// A selecting window's segment that the pre-filter did not reject
-    /// whole: the usual case (room for every pixel, whole words, the seed
-    /// in force) in as few instructions as it takes, the others in
-    /// [`segment_rest`](Self::segment_rest).
+    /// The row kernel stopped at window `k`: its candidates may now prove
+    /// the cutoff is at or above the hint (the back tier then goes, and
+    /// admission rises), or it is short of room for the next segment (it
+    /// then takes the general path, which compacts it when full).
+    #[inline(never)]
+    fn attend(&mut self, k: usize) {
+        let window = &mut self.memory.open[k];
+        raise_to_hint(window, &self.config, self.max_raw);
+        window.attention = attention(window, self.config.selection.rule);
+        self.refresh_ready(k);
+    }
+
+    /// Whether window `k` is `kernel_ready` may have changed: its kernel
+    /// segment and the count of windows the kernel skips, updated.
     #[inline(always)]
-    fn hot_segment<S: Steps, const CHECK: bool>(
-        &mut self,
-        slot: usize,
-        raw: &[u16],
-        pixel: usize,
-        i0: u16,
-        j: u16,
-    ) -> Result<(), usize> {
-        // SAFETY: callers pass an active window's slot (see push_whole_row).
-        let window = unsafe { self.memory.open.get_unchecked(slot) };
-        let (front, back, capacity) = (
-            window.front as usize,
-            window.back as usize,
-            window.capacity as usize,
-        );
-        let whole_words = (raw.as_ptr() as usize & 3) | (raw.len() & 1) == 0;
-        // The floor passed the pre-filter (`OpenWindow::path`): a selecting
-        // window without a rescan pending.
-        if capacity - front - back < raw.len() || !whole_words {
-            return self.segment_rest::<S, CHECK>(slot, raw, pixel, i0, j);
+    fn refresh_ready(&mut self, k: usize) {
+        let window = &mut self.memory.open[k];
+        let was = window.segment_start != window.segment_end;
+        let ready = window.update_kernel_segment();
+        if was != ready {
+            if ready {
+                self.not_ready -= 1;
+            } else {
+                self.not_ready += 1;
+            }
         }
-        // SAFETY: the segment lies in the camera (a window's row, validated
-        // configuration).
-        let (background, gain, fixed) =
-            unsafe { calibrate::run_maps::<S>(&self.config.calibration, pixel, raw.len()) };
-        let memory = &mut self.memory;
-        // SAFETY: as above.
-        let window = unsafe { memory.open.get_unchecked_mut(slot) };
-        let base = window.base as usize;
-        // SAFETY: a slot's entries lie in the pool (`plan`: the pool holds
-        // `stride` entries for every slot, and capacity <= stride).
-        let entries = unsafe { memory.entries.get_unchecked_mut(base..base + capacity) };
-        let origin = entries.as_mut_ptr();
-        let run = WordRun {
-            first: 0,
-            background,
-            gain,
-            fixed,
-            lanes: window.lanes,
-            admit: window.admit,
-            hint: window.hint,
-            base: pack(i0, j),
-            max_raw: self.max_raw,
-        };
-        // SAFETY: `raw` is word-aligned and of even length (checked), so it
-        // is `raw.len() / 2` words; the maps cover the segment (run_maps);
-        // front + back <= capacity, and the room left holds every pixel
-        // (checked).
-        let bad = unsafe {
-            let words = core::slice::from_raw_parts(raw.as_ptr() as *const u32, raw.len() / 2);
-            let mut ends = TierEnds {
-                front_end: origin.add(front),
-                back_start: origin.add(capacity - back),
-            };
-            let bad = admit_words::<S, CHECK>(words, &run, &mut ends);
-            window.front = ends.front_end.offset_from(origin) as u16;
-            window.back = (capacity - ends.back_start.offset_from(origin) as usize) as u16;
-            bad
-        };
-        if let Some(k) = bad {
-            return Err(k);
-        }
-        raise_to_hint(window, entries, &self.config, self.max_raw);
-        Ok(())
     }
 
     /// A window's last pixel has arrived: its result, and what it leaves for
     /// the next frame (level filter, seed).
-    fn finish(&mut self, slot: usize, sink: &mut impl OutputSink) {
+    fn finish(&mut self, k: usize, sink: &mut impl OutputSink) {
         self.finished_in_row = true;
         let memory = &mut self.memory;
-        let window = &mut memory.open[slot];
+        let window = &mut memory.open[k];
         window.finished = true;
         let moments = if window.capacity == 0 {
             window.moments
@@ -608,11 +676,12 @@ impl<'c, 'm> Engine<'c, 'm> {
                 pixels: window.pixels(),
             };
             let state = &mut memory.subapertures[window.index as usize];
-            let base = window.base as usize;
             let capacity = window.capacity as usize;
-            let (front, back) = (window.front as usize, window.back as usize);
-            let entries = &memory.entries[base..base + capacity];
-            settle_at_hint(window, entries);
+            settle_at_hint(window);
+            let (front, back) = (window.front(), window.back());
+            // SAFETY: the window's buffer (opened with it), no other
+            // reference to it alive.
+            let entries: &[Entry] = unsafe { window.entries() };
             let filter = self.config.selection.level_filter;
             let level = |cut: &Cut, state: &mut SubapertureState| match filter {
                 Some(f) => state.level.update(cut.level, f.gain_shift),
@@ -724,23 +793,29 @@ impl<'c, 'm> Engine<'c, 'm> {
     }
 
     fn end_row(&mut self, sink: &mut impl OutputSink) {
+        let mut layout_changed = false;
         if self.finished_in_row {
-            // Close finished windows, keeping the active list in column order.
+            // Close finished windows, keeping the others in column order.
             let memory = &mut self.memory;
             let mut kept = 0;
-            for k in 0..self.active_len {
-                let slot = memory.active[k];
-                if memory.open[slot as usize].finished {
-                    memory.free[self.free_len] = slot;
+            for k in 0..self.open_len {
+                let window = memory.open[k];
+                if window.finished {
+                    memory.free[self.free_len] = window.buffer_number;
                     self.free_len += 1;
+                    if window.segment_start == window.segment_end {
+                        self.not_ready -= 1;
+                    }
                 } else {
-                    memory.active[kept] = slot;
+                    if kept != k {
+                        memory.open[kept] = window;
+                    }
                     kept += 1;
                 }
             }
-            self.active_len = kept;
+            self.open_len = kept;
             self.finished_in_row = false;
-            self.disjoint = self.active_windows_disjoint();
+            layout_changed = true;
         }
         self.cursor = 0;
         self.column = 0;
@@ -751,6 +826,8 @@ impl<'c, 'm> Engine<'c, 'm> {
             self.start_frame();
         } else if self.opens_windows_in_row() {
             self.open_windows_of_row();
+        } else if layout_changed {
+            self.update_layout();
         }
     }
 
@@ -766,22 +843,24 @@ impl<'c, 'm> Engine<'c, 'm> {
 
     fn start_frame(&mut self) {
         let open = self.memory.capacity().open_windows;
-        // After a whole frame every window has closed and its slot is free
-        // again (in another order, which only moves candidate buffers in
-        // the pool); after an aborted one, or before the first, the slots
-        // are listed afresh.
+        // After a whole frame every window has closed and its buffer is
+        // free again (in another order, which only moves candidate buffers
+        // in the pool); after an aborted one, or before the first, the
+        // buffers are listed afresh.
         if self.free_len != open {
             for (k, f) in self.memory.free[..open].iter_mut().enumerate() {
                 *f = (open - 1 - k) as u16;
             }
             self.free_len = open;
         }
-        self.active_len = 0;
+        self.open_len = 0;
+        self.not_ready = 0;
         self.cursor = 0;
         self.finished_in_row = false;
         self.row = 0;
         self.column = 0;
         self.next_to_open = 0;
+        self.update_layout();
         // The first row's windows open in `push_with`.
     }
 
@@ -797,7 +876,7 @@ impl<'c, 'm> Engine<'c, 'm> {
             self.next_to_open += 1;
             // Capacity was proved sufficient when the engine was configured.
             self.free_len -= 1;
-            let slot = self.memory.free[self.free_len];
+            let number = self.memory.free[self.free_len];
             let n = self.config.pixel_count(index);
             // The stride is at least every window's least capacity (plan).
             let capacity = preferred_capacity(self.config.selection.rule, n, w.pixel_count())
@@ -808,12 +887,34 @@ impl<'c, 'm> Engine<'c, 'm> {
             } else {
                 (0, 0)
             };
+            // Its place in column order.
+            let open = &mut self.memory.open;
+            let mut k = self.open_len;
+            while k > 0 && open[k - 1].x > w.x {
+                k -= 1;
+            }
+            open.copy_within(k..self.open_len, k + 1);
+            self.open_len += 1;
+            let buffer = self.pool + number as usize * self.stride * core::mem::size_of::<Entry>();
             // Field by field, in place, through a pattern that names every
             // field (so a new one fails to compile here until it is set): as
             // one struct literal the compiler built part of it on the stack
             // and copied it with a byte-wise `memcpy` call (~200
             // instructions a window on Cortex-M4).
             let OpenWindow {
+                segment_start,
+                segment_end,
+                lanes,
+                admit,
+                position_base,
+                hint: window_hint,
+                front_end,
+                back_start,
+                attention: window_attention,
+                room,
+                buffer: window_buffer,
+                capacity: window_capacity,
+                buffer_number,
                 index: window_index,
                 x,
                 end_column,
@@ -821,26 +922,34 @@ impl<'c, 'm> Engine<'c, 'm> {
                 last_row,
                 width,
                 height,
-                base,
-                finished,
                 n: window_n,
-                capacity: window_capacity,
-                front,
-                back,
-                hint: window_hint,
+                at_hint,
+                counted,
                 hint_ties,
                 low: window_low,
                 low_ties,
-                strict,
-                admit,
-                lanes,
-                at_hint,
-                counted,
                 floor,
+                finished,
+                strict,
                 rescan,
                 bounds,
                 moments,
-            } = &mut self.memory.open[slot as usize];
+            } = &mut open[k];
+            *segment_start = 0;
+            *segment_end = 0;
+            *lanes = 0;
+            *admit = low;
+            *position_base = 0u32
+                .wrapping_sub((w.y as u32) << 6)
+                .wrapping_sub(w.x as u32);
+            *window_hint = hint;
+            *front_end = buffer;
+            *back_start = buffer + capacity as usize * core::mem::size_of::<Entry>();
+            *window_attention = usize::MAX;
+            *room = 8 * w.width as u32;
+            *window_buffer = buffer;
+            *window_capacity = capacity;
+            *buffer_number = number;
             *window_index = index as u16;
             *x = w.x;
             *end_column = w.end_column();
@@ -848,51 +957,42 @@ impl<'c, 'm> Engine<'c, 'm> {
             *last_row = w.last_row();
             *width = w.width;
             *height = w.height;
-            *base = (slot as usize * self.stride) as u32;
-            *finished = false;
             *window_n = n;
-            *window_capacity = capacity;
-            *front = 0;
-            *back = 0;
-            *window_hint = hint;
+            *at_hint = 0;
+            *counted = 0;
             *hint_ties = Ties::NONE;
             *window_low = low;
             *low_ties = Ties::NONE;
-            *strict = false;
-            *admit = low;
-            *lanes = 0;
-            *at_hint = 0;
-            *counted = 0;
             *floor = 0;
+            *finished = false;
+            *strict = false;
             *rescan = false;
             *bounds = state.bounds;
             *moments = Moments::ZERO;
             // A window without selection keeps floor 0 (every segment to
             // `segment_rest`).
+            let window = &mut open[k];
             if capacity > 0 {
-                let window = &mut self.memory.open[slot as usize];
                 update_admission(window, &self.config.calibration, self.max_raw);
+                window.attention = attention(window, self.config.selection.rule);
             }
-            // Insert into the active list, sorted by first column.
-            let active = &mut self.memory.active;
-            let open = &self.memory.open;
-            let mut k = self.active_len;
-            while k > 0 && open[active[k - 1] as usize].x > w.x {
-                active[k] = active[k - 1];
-                k -= 1;
+            if !window.update_kernel_segment() {
+                self.not_ready += 1;
             }
-            active[k] = slot;
-            self.active_len += 1;
         }
-        self.disjoint = self.active_windows_disjoint();
+        self.update_layout();
     }
 
-    /// Whether each active window ends at or before the next one starts.
-    fn active_windows_disjoint(&self) -> bool {
-        let open = &self.memory.open;
-        self.memory.active[..self.active_len]
-            .windows(2)
-            .all(|pair| open[pair[0] as usize].end_column <= open[pair[1] as usize].x)
+    /// The open windows' layout flags: `disjoint`, `gapless` and
+    /// `next_last_row`.
+    fn update_layout(&mut self) {
+        let open = &self.memory.open[..self.open_len];
+        self.disjoint = open.windows(2).all(|pair| pair[0].end_column <= pair[1].x);
+        self.gapless = !open.is_empty()
+            && open[0].x == 0
+            && open[open.len() - 1].end_column == self.config.camera.width
+            && open.windows(2).all(|pair| pair[0].end_column == pair[1].x);
+        self.next_last_row = open.iter().map(|w| w.last_row).min().unwrap_or(u16::MAX);
     }
 }
 
@@ -937,10 +1037,12 @@ fn copy_pixels(from: &[u16], to: &mut [u16]) {
 /// count: `at_hint` is kept lazily, since only the tests of whether the front
 /// covers the hint, compaction and the window's end need it.
 #[inline(always)]
-fn settle_at_hint(window: &mut OpenWindow, entries: &[Entry]) {
-    let (counted, front) = (window.counted as usize, window.front as usize);
+fn settle_at_hint(window: &mut OpenWindow) {
+    let (counted, front) = (window.counted as usize, window.front());
+    // SAFETY: the window's live buffer, no other reference to it.
+    let entries = unsafe { window.entries() };
     window.at_hint += count_at_hint(&entries[counted..front], window.hint);
-    window.counted = window.front;
+    window.counted = front as u16;
 }
 
 /// Front entries equal to the hint.
@@ -953,21 +1055,51 @@ fn count_at_hint(entries: &[Entry], hint: i32) -> u16 {
 /// nothing below it can matter, and often no more pixels equal to it: the
 /// rest of the window is filtered harder.
 #[inline(always)]
-fn raise_to_hint(window: &mut OpenWindow, entries: &[Entry], config: &Config<'_>, max_raw: u16) {
+fn raise_to_hint(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) {
     if !window.strict
-        && window.front + window.hint_ties.count >= window.n
-        && covers(window, entries, config)
+        && window.front() + window.hint_ties.count as usize >= window.n as usize
+        && covers(window, config)
     {
-        window.back = 0;
+        window.set_back(0);
         window.low = window.hint;
         window.low_ties = Ties::NONE;
         window.strict = Tiers::hint_ties_settled(
             config.selection.rule,
             window.n,
-            window.front - window.at_hint,
+            window.front() as u16 - window.at_hint,
         );
         update_admission(window, &config.calibration, max_raw);
     }
+}
+
+/// Where the row kernel next stops at a window for [`raise_to_hint`]: the
+/// front's end at the fewest candidates with which the front and hint ties
+/// could prove the cutoff at or above the hint (or, once they have, make
+/// admission strict), and at least one more than it holds; never once
+/// admission is strict.
+#[inline(always)]
+fn attention(window: &OpenWindow, rule: SelectionRule) -> usize {
+    if window.capacity == 0 || window.strict {
+        return usize::MAX;
+    }
+    let (n, ties, front) = (
+        window.n as usize,
+        window.hint_ties.count as usize,
+        window.front(),
+    );
+    let raised = window.low == window.hint && window.back() == 0;
+    let fewest = match rule {
+        // front + ties > n (Tiers::covers_hint); always strict once raised.
+        SelectionRule::SubtractNext => (n + 1).saturating_sub(ties),
+        // front + ties >= n, then strict at front - at_hint >= n.
+        SelectionRule::Threshold if raised => n + window.at_hint as usize,
+        SelectionRule::Threshold => n.saturating_sub(ties),
+        // Besides n above the hint, copies of it: the count is a bound, the
+        // copies in the front are only counted when it is reached.
+        SelectionRule::SubtractNextDistinct => n + (ties == 0) as usize,
+        SelectionRule::SubtractMean { count } => n + (count as usize).saturating_sub(ties),
+    };
+    window.buffer + fewest.max(front + 1) * core::mem::size_of::<Entry>()
 }
 
 /// After `low`, `hint` or `strict` changed: the window's admission
@@ -984,12 +1116,12 @@ fn update_admission(window: &mut OpenWindow, calibration: &Calibration<'_>, max_
 /// [`Tiers::covers_hint`] for an open window: its front holds the pixels
 /// above the hint and `at_hint` equal to it, beside its hint ties.
 #[inline(always)]
-fn covers(window: &mut OpenWindow, entries: &[Entry], config: &Config<'_>) -> bool {
-    settle_at_hint(window, entries);
+fn covers(window: &mut OpenWindow, config: &Config<'_>) -> bool {
+    settle_at_hint(window);
     Tiers::covers_hint(
         config.selection.rule,
         window.n,
-        window.front - window.at_hint,
+        window.front() as u16 - window.at_hint,
         window.hint_ties.count + window.at_hint,
     )
 }
@@ -999,29 +1131,25 @@ fn covers(window: &mut OpenWindow, entries: &[Entry], config: &Config<'_>) -> bo
 /// `false` if nothing could be dropped.
 #[cold]
 #[inline(never)]
-fn make_room(
-    window: &mut OpenWindow,
-    entries: &mut [Entry],
-    config: &Config<'_>,
-    scratch: &mut [i32],
-) -> bool {
-    settle_at_hint(window, entries);
+fn make_room(window: &mut OpenWindow, config: &Config<'_>, scratch: &mut [i32]) -> bool {
+    settle_at_hint(window);
     let rule = WindowRule {
         rule: config.selection.rule,
         n: window.n,
         pixels: window.pixels(),
     };
-    if window.back > 0 && covers(window, entries, config) {
-        window.back = 0;
+    if window.back() > 0 && covers(window, config) {
+        window.set_back(0);
         window.low = window.hint;
         window.low_ties = Ties::NONE;
         return true;
     }
     let mut buffer = Buffer {
-        entries,
-        front: window.front as usize,
+        // SAFETY: the window's live buffer, no other reference to it.
+        entries: unsafe { window.entries() },
+        front: window.front(),
         at_hint: window.at_hint,
-        back: window.back as usize,
+        back: window.back(),
         hint: window.hint,
         hint_ties: window.hint_ties,
         low: window.low,
@@ -1031,31 +1159,36 @@ fn make_room(
     if !buffer.compact(&rule, scratch) {
         return false;
     }
-    window.front = buffer.front as u16;
+    let room = buffer.front + buffer.back < buffer.entries.len();
+    let (front, back) = (buffer.front, buffer.back);
     window.at_hint = buffer.at_hint;
-    window.counted = window.front;
-    window.back = buffer.back as u16;
     window.hint = buffer.hint;
     window.hint_ties = buffer.hint_ties;
     window.low = buffer.low;
     window.low_ties = buffer.low_ties;
     window.strict = buffer.strict;
-    buffer.front + buffer.back < buffer.entries.len()
+    window.set_front(front);
+    window.set_back(back);
+    window.counted = front as u16;
+    room
 }
 
 /// Puts an admitted pixel into its tier, after [`make_room`].
 #[cold]
-fn place(window: &mut OpenWindow, entries: &mut [Entry], entry: Entry) {
-    let admit = window.admit;
-    let capacity = entries.len();
+fn place(window: &mut OpenWindow, entry: Entry) {
     let p = entry.value;
-    if p < admit {
-    } else if p >= window.hint {
-        entries[window.front as usize] = entry;
-        window.front += 1;
-    } else {
-        window.back += 1;
-        entries[capacity - window.back as usize] = entry;
+    if p < window.admit {
+        return;
+    }
+    // SAFETY: `make_room` left room for one entry between the tiers.
+    unsafe {
+        if p >= window.hint {
+            (window.front_end as *mut Entry).write(entry);
+            window.front_end += core::mem::size_of::<Entry>();
+        } else {
+            window.back_start -= core::mem::size_of::<Entry>();
+            (window.back_start as *mut Entry).write(entry);
+        }
     }
 }
 

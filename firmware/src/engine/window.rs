@@ -6,7 +6,7 @@ use super::centroid::Moments;
 use super::level_filter::LevelFilterState;
 use super::prefilter;
 use super::seed::Seed;
-use super::select::Ties;
+use super::select::{Entry, Ties};
 
 /// What a sub-aperture carries from frame to frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -33,9 +33,58 @@ impl SubapertureState {
     };
 }
 
+/// Bytes of one candidate entry.
+const ENTRY: usize = core::mem::size_of::<Entry>();
+
 /// A window that has started receiving pixels in this frame.
+///
+/// The open windows are kept in the engine's memory in order of first
+/// column, so the row kernel (`scan::row`) walks them one after the other.
+/// It reads and writes the fields before `buffer`, at the offsets `scan`'s
+/// assembly takes from `offset_of!`; the candidate buffer's two tiers are
+/// kept as addresses (`front_end`, `back_start`) because that is what the
+/// kernel stores through, and everything else derives the tiers' lengths
+/// from them ([`OpenWindow::front`], [`OpenWindow::back`]).
+#[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct OpenWindow {
+    /// Byte offsets in its camera row of the first pixel and of the end of
+    /// the window's row segment (`2 x`, `2 end_column`), for the row
+    /// kernel; equal (an empty segment, which the kernel skips) while the
+    /// window's segments take the general path (see
+    /// [`OpenWindow::kernel_ready`]).
+    pub(crate) segment_start: u32,
+    pub(crate) segment_end: u32,
+    /// `floor - 1` in both 16-bit lanes, for `UQSUB16`.
+    pub(crate) lanes: u32,
+    /// The calibrated value a pixel needs to become a candidate
+    /// ([`OpenWindow::admission`] of `low`, `hint` and `strict`), kept with
+    /// `floor` and `lanes` by `stream::update_admission` whenever one of
+    /// them changes.
+    pub(crate) admit: i32,
+    /// `-(y << 6) - x` (wrapping): a pixel's packed position is this plus
+    /// `(row << 6) + column`.
+    pub(crate) position_base: u32,
+    /// Candidates at or above it go to the front, below it to the back.
+    pub(crate) hint: i32,
+    /// The address after the front tier's last entry.
+    pub(crate) front_end: usize,
+    /// The address of the back tier's first entry (the back grows down from
+    /// the buffer's end).
+    pub(crate) back_start: usize,
+    /// When a segment leaves `front_end` at or past this address, the row
+    /// kernel stops at the window (see `stream::next_attention`).
+    pub(crate) attention: usize,
+    /// Bytes of room a segment can take (`8 width`): when less is left
+    /// after a segment, the kernel stops at the window.
+    pub(crate) room: u32,
+
+    /// The candidate buffer's first entry.
+    pub(crate) buffer: usize,
+    /// Candidate buffer capacity; 0: no selection (every pixel weighs).
+    pub(crate) capacity: u16,
+    /// Which of the pool's buffers it is (for the free list).
+    pub(crate) buffer_number: u16,
     pub(crate) index: u16,
     pub(crate) x: u16,
     pub(crate) end_column: u16,
@@ -43,45 +92,28 @@ pub struct OpenWindow {
     pub(crate) last_row: u16,
     pub(crate) width: u16,
     pub(crate) height: u16,
-    /// Its first entry in the candidate pool (its slot times the pool's
-    /// stride).
-    pub(crate) base: u32,
-    pub(crate) finished: bool,
     /// N of this window (SPEC.md §3).
     pub(crate) n: u16,
-    /// Candidate buffer capacity; 0: no selection (every pixel weighs).
-    pub(crate) capacity: u16,
-    /// Candidates at or above the hint, at the buffer's start (`select.rs`).
-    pub(crate) front: u16,
     /// Front entries equal to the hint (the rest are above it).
     pub(crate) at_hint: u16,
     /// Front entries whose ties with the hint `at_hint` counts (the rest
     /// are counted when needed, see `stream::settle_at_hint`).
     pub(crate) counted: u16,
-    /// Candidates between `low` and the hint, at the buffer's end.
-    pub(crate) back: u16,
-    pub(crate) hint: i32,
     pub(crate) hint_ties: Ties,
     /// The admission threshold (`<= hint`).
     pub(crate) low: i32,
     /// Pixels equal to `low`, when `low < hint`.
     pub(crate) low_ties: Ties,
-    /// Admission is `p > low` (see `select::Buffer::strict`).
-    pub(crate) strict: bool,
-    /// The calibrated value a pixel needs to become a candidate
-    /// ([`OpenWindow::admission`] of `low`, `hint` and `strict`), kept with
-    /// `floor` and `lanes` by `stream::update_admission` whenever one of
-    /// them changes: the hot loop reads it instead of deciding again.
-    pub(crate) admit: i32,
-    /// `floor - 1` in both 16-bit lanes, for the hot loop's `UQSUB16`.
-    pub(crate) lanes: u32,
     /// Smallest raw value that can reach `low` (see
     /// `calibrate::raw_floor`), lowered to one above the camera's largest
     /// raw value when that is below 2^16, so that an out-of-range pixel
     /// always reaches the per-pixel check. Always 0 (every segment passes,
-    /// to `Engine::segment_rest`) for a window without selection or awaiting
-    /// a rescan, so that the row loop tests one field, not three.
+    /// to the general path) for a window without selection or awaiting a
+    /// rescan, so that the general path tests one field, not three.
     pub(crate) floor: u32,
+    pub(crate) finished: bool,
+    /// Admission is `p > low` (see `select::Buffer::strict`).
+    pub(crate) strict: bool,
     /// `low` left out a needed pixel or the buffer could not be compacted:
     /// the window is computed again from the row history at its end.
     pub(crate) rescan: bool,
@@ -92,6 +124,19 @@ pub struct OpenWindow {
 
 impl OpenWindow {
     pub const CLOSED: OpenWindow = OpenWindow {
+        segment_start: 0,
+        segment_end: 0,
+        lanes: 0,
+        admit: 0,
+        position_base: 0,
+        hint: 0,
+        front_end: 0,
+        back_start: 0,
+        attention: 0,
+        room: 0,
+        buffer: 0,
+        capacity: 0,
+        buffer_number: 0,
         index: 0,
         x: 0,
         end_column: 0,
@@ -99,22 +144,15 @@ impl OpenWindow {
         last_row: 0,
         width: 0,
         height: 0,
-        base: 0,
-        finished: true,
         n: 0,
-        capacity: 0,
-        front: 0,
         at_hint: 0,
         counted: 0,
-        back: 0,
-        hint: 0,
         hint_ties: Ties::NONE,
         low: 0,
         low_ties: Ties::NONE,
-        strict: false,
-        admit: 0,
-        lanes: 0,
         floor: 0,
+        finished: true,
+        strict: false,
         rescan: false,
         bounds: WindowBounds::NONE,
         moments: Moments::ZERO,
@@ -123,6 +161,79 @@ impl OpenWindow {
     /// Pixels in the window.
     pub(crate) fn pixels(&self) -> u16 {
         self.width * self.height
+    }
+
+    /// Entries in the front tier.
+    #[inline(always)]
+    pub(crate) fn front(&self) -> usize {
+        (self.front_end - self.buffer) / ENTRY
+    }
+
+    /// Entries in the back tier.
+    #[inline(always)]
+    pub(crate) fn back(&self) -> usize {
+        (self.buffer_end() - self.back_start) / ENTRY
+    }
+
+    #[inline(always)]
+    pub(crate) fn set_front(&mut self, front: usize) {
+        self.front_end = self.buffer + front * ENTRY;
+    }
+
+    #[inline(always)]
+    pub(crate) fn set_back(&mut self, back: usize) {
+        self.back_start = self.buffer_end() - back * ENTRY;
+    }
+
+    /// Entries of room between the tiers.
+    #[inline(always)]
+    pub(crate) fn room_left(&self) -> usize {
+        (self.back_start - self.front_end) / ENTRY
+    }
+
+    #[inline(always)]
+    fn buffer_end(&self) -> usize {
+        self.buffer + self.capacity as usize * ENTRY
+    }
+
+    /// The candidate buffer, which the window does not own (it lies in the
+    /// engine's pool): hence a lifetime of the caller's choosing.
+    ///
+    /// # Safety
+    /// `buffer` and `capacity` describe a live buffer of the engine's pool
+    /// (set when the window was opened), and no other reference to it is
+    /// alive while the one returned is.
+    #[inline(always)]
+    #[allow(clippy::mut_from_ref)]
+    pub(crate) unsafe fn entries<'a>(&self) -> &'a mut [Entry] {
+        // SAFETY: the caller's contract.
+        unsafe {
+            core::slice::from_raw_parts_mut(self.buffer as *mut Entry, self.capacity as usize)
+        }
+    }
+
+    /// Whether the row kernel takes this window's segments: it selects,
+    /// is not awaiting a rescan, has room for a whole segment, and its
+    /// segments are whole words (even first column and width) in a
+    /// word-aligned row.
+    #[inline(always)]
+    pub(crate) fn kernel_ready(&self) -> bool {
+        self.floor != 0 && (self.x | self.width) & 1 == 0 && self.room_left() >= self.width as usize
+    }
+
+    /// Sets the segment the row kernel sees: the window's, or an empty one
+    /// when it is not [`kernel_ready`](Self::kernel_ready). Returns whether
+    /// it is ready.
+    #[inline(always)]
+    pub(crate) fn update_kernel_segment(&mut self) -> bool {
+        let ready = self.kernel_ready();
+        self.segment_start = 2 * self.x as u32;
+        self.segment_end = if ready {
+            2 * self.end_column as u32
+        } else {
+            self.segment_start
+        };
+        ready
     }
 
     /// The calibrated value a pixel needs to become a candidate: `low`, or
@@ -137,10 +248,11 @@ impl OpenWindow {
         }
     }
 
-    /// Where a row segment of this window goes: the pre-filter rejects it
-    /// whole (`floor` is capped so that an out-of-range pixel is never
-    /// rejected), or it has candidates, or the window is one the general
-    /// path takes (floor 0: every pixel passes, no selection, a rescan).
+    /// Where a row segment of this window goes on the general path: the
+    /// pre-filter rejects it whole (`floor` is capped so that an
+    /// out-of-range pixel is never rejected), or it has candidates, or the
+    /// window is one the general path takes pixel by pixel (floor 0: every
+    /// pixel passes, no selection, a rescan).
     #[inline(always)]
     pub(crate) fn path(&self, raw: &[u16]) -> SegmentPath {
         match self.floor {

@@ -66,7 +66,6 @@ static SUBAPERTURE_STATES: ConstStaticCell<[SubapertureState; S]> =
     ConstStaticCell::new([SubapertureState::RESET; S]);
 static OPEN_WINDOWS: ConstStaticCell<[OpenWindow; OPEN]> =
     ConstStaticCell::new([OpenWindow::CLOSED; OPEN]);
-static ACTIVE: ConstStaticCell<[u16; OPEN]> = ConstStaticCell::new([0; OPEN]);
 static FREE: ConstStaticCell<[u16; OPEN]> = ConstStaticCell::new([0; OPEN]);
 static POOL: ConstStaticCell<[Entry; ENTRIES]> = ConstStaticCell::new([Entry::ZERO; ENTRIES]);
 static HISTORY: ConstStaticCell<[u16; HISTORY_PIXELS]> = ConstStaticCell::new([0; HISTORY_PIXELS]);
@@ -87,7 +86,7 @@ static STREAM_PIXELS: ConstStaticCell<[u16; PIXEL_BATCH]> = ConstStaticCell::new
 /// Bytes of all the buffers above.
 pub const TOTAL_BYTES: usize = 2 * core::mem::size_of::<SlotStorage<S, P>>()
     + S * (2 + core::mem::size_of::<SubapertureState>())
-    + OPEN * (core::mem::size_of::<OpenWindow>() + 4)
+    + OPEN * (core::mem::size_of::<OpenWindow>() + 2)
     + ENTRIES * 8
     + HISTORY_PIXELS * 2
     + SCRATCH_ENTRIES * 12
@@ -105,7 +104,6 @@ pub fn device_buffers() -> DeviceBuffers<'static> {
             order: ENGINE_ORDER.take(),
             subapertures: SUBAPERTURE_STATES.take(),
             open: OPEN_WINDOWS.take(),
-            active: ACTIVE.take(),
             free: FREE.take(),
             entries: POOL.take(),
             history: HISTORY.take(),
