@@ -274,16 +274,21 @@ pub fn raw_floor(c: &Calibration<'_>, bounds: WindowBounds, threshold: i32) -> u
     if threshold == i32::MIN || (threshold <= 0 && (c.threshold.is_some() || c.gain.is_some())) {
         return 0;
     }
-    let needed = if c.gain.is_some() {
-        // threshold > 0 here.
-        if bounds.gain_max == 0 {
-            return FLOOR_NONE;
-        }
-        let scaled = (threshold as i64) << GAIN_FRACTION_BITS;
-        (scaled + bounds.gain_max as i64 - 1) / bounds.gain_max as i64
-    } else {
-        threshold as i64
-    };
+    if c.gain.is_none() {
+        // |threshold| < 2^26 past the test above (a calibrated value or a
+        // level), |min B| <= 2^20: the sum fits 32 bits.
+        let floor = (threshold
+            .saturating_add(bounds.background_min)
+            .saturating_add(15))
+            >> 4;
+        return floor.clamp(0, FLOOR_NONE as i32) as u32;
+    }
+    // threshold > 0 here.
+    if bounds.gain_max == 0 {
+        return FLOOR_NONE;
+    }
+    let scaled = (threshold as i64) << GAIN_FRACTION_BITS;
+    let needed = (scaled + bounds.gain_max as i64 - 1) / bounds.gain_max as i64;
     // ceil((needed + min B) / 16), floor division by the arithmetic shift.
     let floor = (needed + bounds.background_min as i64 + 15) >> 4;
     floor.clamp(0, FLOOR_NONE as i64) as u32

@@ -171,27 +171,41 @@ pub fn for_each_at_least(raw: &[u16], floor: u16, mut f: impl FnMut(usize, u16) 
 }
 
 /// `to.copy_from_slice(from)` for words (the engine's row history). On
-/// Cortex-M with `LDM`/`STM`, four words (eight pixels) per pair of
+/// Cortex-M with `LDM`/`STM`, eight words (sixteen pixels) per six
 /// instructions; [`copy_words_portable`] is its twin.
 #[inline(always)]
 pub fn copy_words(from: &[u32], to: &mut [u32]) {
     assert_eq!(from.len(), to.len());
     #[cfg(target_arch = "arm")]
     {
+        let octets = from.len() / 8;
         let quads = from.len() / 4;
         if quads > 0 {
             // SAFETY: reads and writes exactly `4 * quads` words within the
-            // two slices (equal lengths, asserted); r2-r5 are clobbered.
+            // two slices (equal lengths, asserted): `octets` rounds of
+            // eight, then one of four if `quads` is odd; r2-r5 are
+            // clobbered.
             unsafe {
                 core::arch::asm!(
+                    "cmp {n}, #0",
+                    "beq 3f",
                     "2:",
+                    "ldm {f}!, {{r2, r3, r4, r5}}",
+                    "stm {t}!, {{r2, r3, r4, r5}}",
                     "ldm {f}!, {{r2, r3, r4, r5}}",
                     "stm {t}!, {{r2, r3, r4, r5}}",
                     "subs {n}, {n}, #1",
                     "bne 2b",
+                    "3:",
+                    "tst {q}, #1",
+                    "beq 4f",
+                    "ldm {f}!, {{r2, r3, r4, r5}}",
+                    "stm {t}!, {{r2, r3, r4, r5}}",
+                    "4:",
                     f = inout(reg) from.as_ptr() => _,
                     t = inout(reg) to.as_mut_ptr() => _,
-                    n = inout(reg) quads => _,
+                    n = inout(reg) octets => _,
+                    q = in(reg) quads,
                     out("r2") _, out("r3") _, out("r4") _, out("r5") _,
                     options(nostack),
                 );

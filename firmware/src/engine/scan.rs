@@ -186,12 +186,14 @@ pub unsafe fn row_portable<S: Steps, const CHECK: bool>(args: &mut RowScan) -> R
                     .wrapping_add((args.row >> 1) as u32)
                     .wrapping_add(column as u32),
             );
-            let mut passed = false;
-            let mut mask = hot_pixels(raw, window.lanes);
-            while mask != 0 {
-                let i = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                passed = true;
+            let mask = hot_pixels(raw, window.lanes);
+            let passed = mask != 0;
+            let (mut front_end, mut back_start) = (window.front_end, window.back_start);
+            let (admit, hint) = (window.admit, window.hint);
+            let mut bits = mask;
+            while bits != 0 {
+                let i = bits.trailing_zeros() as usize;
+                bits &= bits - 1;
                 let r = raw[i];
                 if CHECK && r as u32 > args.max_raw {
                     args.bad = raw.as_ptr() as usize + 2 * i;
@@ -204,24 +206,28 @@ pub unsafe fn row_portable<S: Steps, const CHECK: bool>(args: &mut RowScan) -> R
                 let p = unsafe {
                     calibrate::value_in_run_unchecked::<S>(r, i, background, gain, args.threshold)
                 };
-                if p >= window.admit {
-                    let entry = Entry {
-                        value: p,
-                        position: position.wrapping_add(i as u32),
-                    };
-                    // SAFETY: the buffer has room for the segment (the
-                    // caller's contract), each pixel stores once.
-                    unsafe {
-                        if p >= window.hint {
-                            (window.front_end as *mut Entry).write(entry);
-                            window.front_end += core::mem::size_of::<Entry>();
-                        } else {
-                            window.back_start -= core::mem::size_of::<Entry>();
-                            (window.back_start as *mut Entry).write(entry);
-                        }
-                    }
+                let entry = Entry {
+                    value: p,
+                    position: position.wrapping_add(i as u32),
+                };
+                // Without a branch (they mispredict on hosts): written at
+                // both free ends, kept by moving the end of its tier. The
+                // buffer has room for the segment (the caller's contract)
+                // and each pixel stores once, so both writes are in the
+                // free space, and where they meet they are one.
+                let admitted = p >= admit;
+                let upper = p >= hint;
+                const ENTRY: usize = core::mem::size_of::<Entry>();
+                // SAFETY: see above.
+                unsafe {
+                    (front_end as *mut Entry).write(entry);
+                    ((back_start - ENTRY) as *mut Entry).write(entry);
                 }
+                front_end += ENTRY * (admitted & upper) as usize;
+                back_start -= ENTRY * (admitted & !upper) as usize;
             }
+            window.front_end = front_end;
+            window.back_start = back_start;
             if passed
                 && (window.back_start - window.front_end < window.room as usize
                     || window.front_end >= window.attention)
@@ -794,7 +800,19 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
                 });
             }
         }
-        if let Some(at) = (0..buffers[0].len()).find(|&i| buffers[0][i] != buffers[1][i]) {
+        // The tiers' contents (the twin also writes into the free space).
+        let in_tiers = |i: usize| {
+            let k = i / share;
+            if k >= made {
+                return false;
+            }
+            let (front, back) = (kernel[k].front(), kernel[k].back());
+            let at = i % share;
+            at < front || at >= share - back
+        };
+        if let Some(at) =
+            (0..buffers[0].len()).find(|&i| in_tiers(i) && buffers[0][i] != buffers[1][i])
+        {
             return Err(KernelMismatch {
                 what: "the row kernel's candidates differ from its twin's",
                 round,

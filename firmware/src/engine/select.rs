@@ -474,12 +474,22 @@ pub fn add_moments(moments: &mut Moments, cut: &Cut, level: Option<i32>, entries
     let lowest = cut.lowest_kept();
     match level {
         Some(level) => {
+            // Weights max(0, p - level) are never negative: sums of u32
+            // products in u64 (one multiply-accumulate each on Cortex-M).
+            // |p|, |level| < 2^25, so p - level does not overflow.
+            let (mut f, mut wi, mut wj) = (0u64, 0u64, 0u64);
             for e in entries {
                 if e.value >= lowest {
-                    let position = e.position as u16;
-                    moments.add((e.value - level).max(0), column(position), row(position));
+                    let w = e.value.wrapping_sub(level).max(0) as u32;
+                    let position = e.position;
+                    f += w as u64;
+                    wi += w as u64 * (position & COLUMN_MASK as u32) as u64;
+                    wj += w as u64 * ((position >> COLUMN_BITS) & COLUMN_MASK as u32) as u64;
                 }
             }
+            moments.sum_w += f as i64;
+            moments.sum_wi += wi as i64;
+            moments.sum_wj += wj as i64;
         }
         None => {
             for e in entries {

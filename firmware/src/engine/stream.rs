@@ -92,6 +92,9 @@ pub struct Engine<'c, 'm> {
     stride: usize,
     /// Rows in the history ring (0: no window selects, none kept).
     history_rows: usize,
+    /// Where the current row starts in the history ring
+    /// (`(row % history_rows) * width`).
+    history_row: usize,
     max_raw: u16,
     row: u16,
     column: u16,
@@ -115,6 +118,14 @@ pub struct Engine<'c, 'm> {
     not_ready: usize,
     /// The earliest last row of an open window.
     next_last_row: u16,
+    /// The row kernel's arguments, kept from row to row: the open windows
+    /// (`first .. end`, set with the layout), the maps' addresses for the
+    /// current row (advanced by `end_row`).
+    scan: RowScan,
+    /// The address of the current row's first background value (0 without
+    /// a map), and its packed row (`row << 6`).
+    bg_row: usize,
+    position_row: u32,
     frames: u32,
     needed: MemorySize,
     stats: EngineStats,
@@ -160,6 +171,7 @@ impl<'c, 'm> Engine<'c, 'm> {
             pool,
             stride: plan.stride,
             history_rows: plan.history_rows,
+            history_row: 0,
             max_raw: config.camera.max_raw(),
             row: 0,
             column: 0,
@@ -174,6 +186,19 @@ impl<'c, 'm> Engine<'c, 'm> {
             gapless: false,
             not_ready: 0,
             next_last_row: u16::MAX,
+            scan: RowScan {
+                row: 0,
+                first: 0,
+                end: 0,
+                bg_delta: 0,
+                position_delta: 0,
+                max_raw: config.camera.max_raw() as u32,
+                bad: 0,
+                gain_row: 0,
+                threshold: config.calibration.threshold.unwrap_or(i32::MIN),
+            },
+            bg_row: 0,
+            position_row: 0,
             frames: 0,
             needed: plan.needed,
             stats: EngineStats::default(),
@@ -289,9 +314,11 @@ impl<'c, 'm> Engine<'c, 'm> {
             let take = pixels.len().min((width - self.column) as usize);
             let (part, rest) = pixels.split_at(take);
             if self.history_rows > 0 {
-                let at =
-                    (self.row as usize % self.history_rows) * width as usize + self.column as usize;
-                copy_pixels(part, &mut self.memory.history[at..at + take]);
+                let at = self.history_row + self.column as usize;
+                // SAFETY: the ring holds `history_rows` camera rows (plan),
+                // `history_row` is one of them and the part lies in it.
+                let to = unsafe { self.memory.history.get_unchecked_mut(at..at + take) };
+                copy_pixels(part, to);
             }
             let pushed = if take == width as usize {
                 self.push_whole_row::<S, CHECK>(part, sink)
@@ -330,77 +357,70 @@ impl<'c, 'm> Engine<'c, 'm> {
         row_pixels: &[u16],
         sink: &mut impl OutputSink,
     ) -> Result<(), usize> {
-        let aligned = row_pixels.as_ptr() as usize & 3 == 0;
-        if !aligned || (CHECK && !self.gapless) {
+        let row_address = row_pixels.as_ptr() as usize;
+        if row_address & 3 != 0 || (CHECK && !self.gapless) {
             return self.push_whole_row_general::<S, CHECK>(row_pixels, sink);
         }
         let row = self.row;
-        let width = row_pixels.len();
-        let at = row as usize * width;
-        let c = &self.config.calibration;
-        // SAFETY (the maps' rows): a validated configuration's maps hold a
-        // value per camera pixel.
-        let background = c
-            .background
-            .map(|b| unsafe { b.get_unchecked(at..at + width) });
-        let gain = c.gain.map(|g| unsafe { g.get_unchecked(at..at + width) });
-        let open = &mut self.memory.open[..self.open_len];
-        let mut args = RowScan::new(
-            row_pixels,
-            row,
-            background,
-            gain,
-            c.threshold,
-            open,
-            self.max_raw,
-        );
-        let first = args.first;
+        self.scan.row = row_address;
+        self.scan.bg_delta = self.bg_row.wrapping_sub(2 * row_address).wrapping_sub(16);
+        self.scan.position_delta = self
+            .position_row
+            .wrapping_sub(4)
+            .wrapping_sub((row_address >> 1) as u32);
         const SIZE: usize = core::mem::size_of::<OpenWindow>();
+        let first = self.scan.first;
+        let all = self.scan.end;
         let mut k = 0;
         while k < self.open_len {
             let ready = |w: &OpenWindow| w.segment_start != w.segment_end;
-            if !ready(&self.memory.open[k]) {
+            let end = if self.not_ready == 0 {
+                self.open_len
+            } else if !ready(&self.memory.open[k]) {
                 let w = &self.memory.open[k];
                 let (x, end, y) = (w.x as usize, w.end_column as usize, w.y);
-                if let Err(b) = self.segment::<S, CHECK>(k, &row_pixels[x..end], at + x, 0, row - y)
+                let pixel = row as usize * row_pixels.len() + x;
+                if let Err(b) = self.segment::<S, CHECK>(k, &row_pixels[x..end], pixel, 0, row - y)
                 {
                     self.finish_before(k, sink);
                     return Err(x + b);
                 }
                 k += 1;
                 continue;
-            }
-            // A run of ready windows (none becomes ready or not before the
-            // kernel has passed it).
-            let mut end = k + 1;
-            if self.not_ready > 0 {
+            } else {
+                // A run of ready windows (none becomes ready or not before
+                // the kernel has passed it).
+                let mut end = k + 1;
                 while end < self.open_len && ready(&self.memory.open[end]) {
                     end += 1;
                 }
-            } else {
-                end = self.open_len;
-            }
-            args.first = first + k * SIZE;
-            args.end = first + end * SIZE;
+                end
+            };
+            self.scan.first = first + k * SIZE;
+            self.scan.end = first + end * SIZE;
             loop {
                 // SAFETY: the arguments are made from the row, its maps and
                 // the open windows; every window of the run is
                 // `kernel_ready`: word-aligned in this aligned row, with
                 // room for a segment.
-                match unsafe { scan::row::<S, CHECK>(&mut args) } {
+                match unsafe { scan::row::<S, CHECK>(&mut self.scan) } {
                     RowStop::Done => break,
                     RowStop::Attention(address) => {
                         self.attend((address - first) / SIZE);
-                        args.first = address + SIZE;
+                        self.scan.first = address + SIZE;
                     }
                     RowStop::OutOfRange { window, pixel } => {
+                        self.scan.first = first;
+                        self.scan.end = all;
                         self.finish_before((window - first) / SIZE, sink);
-                        return Err((pixel - row_pixels.as_ptr() as usize) / 2);
+                        return Err((pixel - row_address) / 2);
                     }
                 }
             }
             k = end;
         }
+        self.scan.first = first;
+        self.scan.end = all;
         if row == self.next_last_row {
             for k in 0..self.open_len {
                 if self.memory.open[k].last_row == row {
@@ -409,6 +429,35 @@ impl<'c, 'm> Engine<'c, 'm> {
             }
         }
         Ok(())
+    }
+
+    /// The row kernel over the open windows `k .. end` (all
+    /// `kernel_ready`), of the current row at `row_address` (word-aligned),
+    /// at 16 bits (no pixel can be out of range).
+    fn kernel_run<S: Steps, const CHECK: bool>(
+        &mut self,
+        row_address: usize,
+        k: usize,
+        end: usize,
+    ) {
+        const SIZE: usize = core::mem::size_of::<OpenWindow>();
+        let (first, all) = (self.scan.first, self.scan.end);
+        self.scan.row = row_address;
+        self.scan.bg_delta = self.bg_row.wrapping_sub(2 * row_address).wrapping_sub(16);
+        self.scan.position_delta = self
+            .position_row
+            .wrapping_sub(4)
+            .wrapping_sub((row_address >> 1) as u32);
+        self.scan.first = first + k * SIZE;
+        self.scan.end = first + end * SIZE;
+        // SAFETY: the windows `k .. end` are kernel-ready and their
+        // segments lie in the part of the row the caller holds.
+        while let RowStop::Attention(address) = unsafe { scan::row::<S, CHECK>(&mut self.scan) } {
+            self.attend((address - first) / SIZE);
+            self.scan.first = address + SIZE;
+        }
+        self.scan.first = first;
+        self.scan.end = all;
     }
 
     /// A pixel out of range in window `k`'s segment of a gapless row: the
@@ -482,7 +531,34 @@ impl<'c, 'm> Engine<'c, 'm> {
         // Columns checked against the bit depth so far.
         let mut checked = start;
         let mut k = self.cursor;
+        // The row's first pixel's address, if word-aligned: then (at 16
+        // bits, where no pixel can be out of range) the windows wholly
+        // inside the part take the row kernel.
+        let row_address = (part.as_ptr() as usize).wrapping_sub(2 * start as usize);
+        let kernel = !CHECK && row_address & 3 == 0;
         while k < self.open_len {
+            if kernel {
+                let inside = |w: &OpenWindow| {
+                    w.segment_start != w.segment_end && w.x >= start && w.end_column <= end
+                };
+                if inside(&self.memory.open[k]) {
+                    let mut run_end = k + 1;
+                    while run_end < self.open_len && inside(&self.memory.open[run_end]) {
+                        run_end += 1;
+                    }
+                    self.kernel_run::<S, CHECK>(row_address, k, run_end);
+                    for j in k..run_end {
+                        if self.memory.open[j].last_row == row {
+                            self.finish(j, sink);
+                        }
+                    }
+                    if self.cursor == k {
+                        self.cursor = run_end;
+                    }
+                    k = run_end;
+                    continue;
+                }
+            }
             let window = &self.memory.open[k];
             let (x, end_column, y, last_row) =
                 (window.x, window.end_column, window.y, window.last_row);
@@ -820,6 +896,20 @@ impl<'c, 'm> Engine<'c, 'm> {
         self.cursor = 0;
         self.column = 0;
         self.row += 1;
+        let width = self.config.camera.width as usize;
+        if self.bg_row != 0 {
+            self.bg_row += 4 * width;
+        }
+        if self.scan.gain_row != 0 {
+            self.scan.gain_row += 2 * width;
+        }
+        self.position_row += 1 << 6;
+        if self.history_rows > 0 {
+            self.history_row += width;
+            if self.history_row == self.history_rows * width {
+                self.history_row = 0;
+            }
+        }
         if self.row == self.config.camera.height {
             self.frames = self.frames.wrapping_add(1);
             sink.frame_complete(self.frames);
@@ -859,6 +949,11 @@ impl<'c, 'm> Engine<'c, 'm> {
         self.finished_in_row = false;
         self.row = 0;
         self.column = 0;
+        self.history_row = 0;
+        let c = &self.config.calibration;
+        self.bg_row = c.background.map_or(0, |b| b.as_ptr() as usize);
+        self.scan.gain_row = c.gain.map_or(0, |g| g.as_ptr() as usize);
+        self.position_row = 0;
         self.next_to_open = 0;
         self.update_layout();
         // The first row's windows open in `push_with`.
@@ -893,7 +988,9 @@ impl<'c, 'm> Engine<'c, 'm> {
             while k > 0 && open[k - 1].x > w.x {
                 k -= 1;
             }
-            open.copy_within(k..self.open_len, k + 1);
+            if k < self.open_len {
+                open.copy_within(k..self.open_len, k + 1);
+            }
             self.open_len += 1;
             let buffer = self.pool + number as usize * self.stride * core::mem::size_of::<Entry>();
             // Field by field, in place, through a pattern that names every
@@ -993,6 +1090,9 @@ impl<'c, 'm> Engine<'c, 'm> {
             && open[open.len() - 1].end_column == self.config.camera.width
             && open.windows(2).all(|pair| pair[0].end_column == pair[1].x);
         self.next_last_row = open.iter().map(|w| w.last_row).min().unwrap_or(u16::MAX);
+        let range = self.memory.open[..self.open_len].as_mut_ptr_range();
+        self.scan.first = range.start as usize;
+        self.scan.end = range.end as usize;
     }
 }
 
