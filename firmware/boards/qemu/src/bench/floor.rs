@@ -115,6 +115,13 @@ pub struct Floor<'a> {
     /// can pass, which the kernel's lanes cannot say): it is summed
     /// pixel by pixel after the kernel, which skips it.
     any_floor_zero: bool,
+    /// [`FloorMode::Skip`]: the kernel's arguments, kept from row to row;
+    /// the row in its windows, the grid row, and the address of the row's
+    /// first background value (0 without a map).
+    args: FloorRow,
+    j: usize,
+    gy: usize,
+    bg_row: usize,
 }
 
 impl<'a> Floor<'a> {
@@ -127,6 +134,7 @@ impl<'a> Floor<'a> {
         bounds: &'a [WindowBounds],
     ) -> Self {
         assert!(grid.across <= MAX_ACROSS && grid.side <= MAX_SIDE);
+        assert!(mode != FloorMode::Skip || grid.side.is_multiple_of(2));
         assert!(grid.width() <= NO_BACKGROUND.len());
         Floor {
             grid,
@@ -140,6 +148,18 @@ impl<'a> Floor<'a> {
             row_levels: [0; MAX_ACROSS],
             kernel: [FloorWindow::default(); MAX_ACROSS],
             any_floor_zero: false,
+            args: FloorRow {
+                row: core::ptr::null(),
+                windows: core::ptr::null_mut(),
+                windows_end: core::ptr::null_mut(),
+                segment_bytes: 2 * grid.side as u32,
+                bg_delta: 0,
+                bg_row: 0,
+                j: 0,
+            },
+            j: 0,
+            gy: 0,
+            bg_row: calibration.background.map_or(0, |b| b.as_ptr() as usize),
         }
     }
 
@@ -152,6 +172,9 @@ impl<'a> Floor<'a> {
     /// loops.
     #[inline(never)]
     pub fn push_row(&mut self, y: usize, row: &[u16], out: &mut impl FnMut(SubapertureResult)) {
+        if self.mode == FloorMode::Skip {
+            return self.skip_push(y, row, out);
+        }
         let (across, side, width) = (self.grid.across, self.grid.side, self.grid.width());
         let (gy, j) = (y / side, y % side);
         let first = gy * across;
@@ -190,7 +213,7 @@ impl<'a> Floor<'a> {
             .zip(self.sums[..across].iter_mut())
             .zip(self.floors[..across].iter().zip(&self.row_levels[..across]));
         match self.mode {
-            FloorMode::Skip => self.skip_row(y, j, row),
+            FloorMode::Skip => unreachable!("push_row takes skip_push"),
             FloorMode::CalibrateAll => {
                 for (((segment, bg), sums), (_, &level)) in windows {
                     let (mut f, mut fi) = (0i32, 0i64);
@@ -231,40 +254,106 @@ impl<'a> Floor<'a> {
         }
     }
 
-    /// One camera row of [`FloorMode::Skip`]: the kernel, then the windows
-    /// it skipped for a raw floor of 0.
+    /// One camera row of [`FloorMode::Skip`] (rows come in order from
+    /// the frame's first): the kernel, then the windows it skipped for a
+    /// raw floor of 0; after a grid row's last camera row, its results.
     #[inline(always)]
-    fn skip_row(&mut self, y: usize, j: usize, row: &[u16]) {
-        let (across, side, width) = (self.grid.across, self.grid.side, self.grid.width());
-        let background = self
-            .calibration
-            .background
-            .map(|b| &b[y * width..][..width]);
-        let windows = &mut self.kernel[..across];
-        let args = FloorRow::new(row, background, windows, side, j);
-        // SAFETY: the arguments are made from live slices of the row, its
-        // background and the windows, as FloorRow::new requires.
+    fn skip_push(&mut self, y: usize, row: &[u16], out: &mut impl FnMut(SubapertureResult)) {
+        debug_assert_eq!(y, self.gy * self.grid.side + self.j);
+        if self.j == 0 {
+            self.start_band();
+        }
+        let row_address = row.as_ptr() as usize;
+        assert!(row_address & 3 == 0 && row.len() >= self.grid.width());
+        self.args.row = row.as_ptr();
+        self.args.bg_delta = self.bg_row.wrapping_sub(2 * row_address).wrapping_sub(16);
+        self.args.bg_row = self.bg_row;
+        self.args.j = self.j as u32;
+        // SAFETY: the arguments point at this row (a whole, word-aligned
+        // camera row of the grid: asserted above), its background
+        // row and the grid row's windows.
         unsafe {
-            if background.is_some() {
-                floor_row::<true>(&args)
+            if self.bg_row != 0 {
+                floor_row::<true>(&self.args)
             } else {
-                floor_row::<false>(&args)
+                floor_row::<false>(&self.args)
             }
         }
         if self.any_floor_zero {
-            for (sx, window) in windows.iter_mut().enumerate() {
-                if self.floors[sx] != 0 {
-                    continue;
-                }
-                for i in 0..side {
-                    let column = sx * side + i;
-                    let b = background.map_or(0, |b| b[column]);
-                    let w = ((row[column] as i32) << 4) - b - window.level;
-                    if w > 0 {
-                        window.sum_w += w as u64;
-                        window.sum_wcol += w as u64 * column as u64;
-                        window.sum_wj += w as u64 * j as u64;
-                    }
+            self.floor_zero_row(row);
+        }
+        let (side, width) = (self.grid.side, self.grid.width());
+        if self.bg_row != 0 {
+            self.bg_row += 4 * width;
+        }
+        self.j += 1;
+        if self.j == side {
+            let first = self.gy * self.grid.across;
+            for (sx, k) in self.kernel[..self.grid.across].iter().enumerate() {
+                let moments = Moments {
+                    sum_w: k.sum_w as i64,
+                    sum_wi: k.sum_wcol.wrapping_sub((sx * side) as u64 * k.sum_w) as i64,
+                    sum_wj: k.sum_wj as i64,
+                };
+                out(self
+                    .centroider
+                    .result((first + sx) as u16, moments, side as u16, side as u16));
+            }
+            self.j = 0;
+            self.gy += 1;
+        }
+    }
+
+    /// A grid row's windows: levels, lanes, sums cleared.
+    #[cold]
+    fn start_band(&mut self) {
+        let across = self.grid.across;
+        let first = self.gy * across;
+        for sx in 0..across {
+            let level = self.levels[first + sx];
+            // Strictly above L: the raw floor of L + 1.
+            let floor = raw_floor(
+                &self.calibration,
+                self.bounds[first + sx],
+                level.saturating_add(1),
+            );
+            self.floors[sx] = floor;
+            self.kernel[sx] = FloorWindow {
+                lanes: if floor == 0 || floor >= FLOOR_NONE {
+                    u32::MAX
+                } else {
+                    (floor - 1) * 0x0001_0001
+                },
+                level,
+                ..FloorWindow::default()
+            };
+        }
+        self.any_floor_zero = self.floors[..across].contains(&0);
+        let range = self.kernel[..across].as_mut_ptr_range();
+        self.args.windows = range.start;
+        self.args.windows_end = range.end;
+    }
+
+    /// The windows of a raw floor of 0, pixel by pixel.
+    #[cold]
+    fn floor_zero_row(&mut self, row: &[u16]) {
+        let (side, width, j) = (self.grid.side, self.grid.width(), self.j);
+        let background = (self.bg_row != 0).then(|| {
+            // SAFETY: `bg_row` is the address of the current row of the map.
+            unsafe { core::slice::from_raw_parts(self.bg_row as *const i32, width) }
+        });
+        for (sx, window) in self.kernel[..self.grid.across].iter_mut().enumerate() {
+            if self.floors[sx] != 0 {
+                continue;
+            }
+            for i in 0..side {
+                let column = sx * side + i;
+                let b = background.map_or(0, |b| b[column]);
+                let w = ((row[column] as i32) << 4) - b - window.level;
+                if w > 0 {
+                    window.sum_w += w as u64;
+                    window.sum_wcol += w as u64 * column as u64;
+                    window.sum_wj += w as u64 * j as u64;
                 }
             }
         }
