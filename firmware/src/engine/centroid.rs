@@ -1,5 +1,6 @@
 //! Stage 3: centre of gravity and slopes (SPEC.md §5).
 
+use super::calibrate::{value_in_run_unchecked, Steps};
 use brightpix_protocol::Centroid;
 
 /// Weighted sums over a window in window-local pixel indices:
@@ -33,6 +34,40 @@ impl Moments {
         self.sum_w += w * count as i64;
         self.sum_wi += w * sum_i as i64;
         self.sum_wj += w * sum_j as i64;
+    }
+
+    /// A row segment of raw pixels with weight = calibrated value (no
+    /// selection): columns `i0..`, row `j`; `background`, `gain` and
+    /// `threshold` as `calibrate::value_in_run` takes them, covering `raw`.
+    /// One pass: each pixel calibrated and summed (prefix sums for the
+    /// first moment, as [`add_row`](Self::add_row)).
+    #[inline(always)]
+    pub fn add_raw_row<S: Steps>(
+        &mut self,
+        raw: &[u16],
+        background: &[i32],
+        gain: &[u16],
+        threshold: i32,
+        i0: u16,
+        j: u16,
+    ) {
+        assert!(
+            (!S::BACKGROUND || background.len() >= raw.len())
+                && (!S::GAIN || gain.len() >= raw.len())
+        );
+        // |S_k| <= 64 (2^25 - 1) < 2^31 (a segment is at most 64 pixels).
+        let mut prefix = 0i32;
+        let mut prefix_sum = 0i64;
+        for (k, &r) in raw.iter().enumerate() {
+            // SAFETY: k < raw.len(), which the maps cover (asserted).
+            prefix += unsafe { value_in_run_unchecked::<S>(r, k, background, gain, threshold) };
+            prefix_sum += prefix as i64;
+        }
+        let sum = prefix as i64;
+        let n = raw.len() as i64;
+        self.sum_w += sum;
+        self.sum_wi += i0 as i64 * sum + (n * sum - prefix_sum);
+        self.sum_wj += sum * j as i64;
     }
 
     /// A row segment with weight = value (no selection): columns `i0..`, row `j`.

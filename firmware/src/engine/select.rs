@@ -274,6 +274,65 @@ impl Tiers<'_> {
             .or((self.low_ties > 0 && self.low < v).then_some(self.low))
     }
 
+    /// Front entries above the hint.
+    fn above(&self) -> usize {
+        self.front.len() - self.front_at_hint as usize
+    }
+
+    /// The `m` smallest front values above the hint, ascending, in one
+    /// pass (`m <= NEAR_FRONT`): with `m = above - k + 1` the last is the
+    /// k-th largest candidate, and every front value below it is among
+    /// them.
+    fn smallest_above_hint(&self, m: usize) -> [i32; NEAR_FRONT] {
+        let hint = self.hint;
+        let mut best = [0i32; NEAR_FRONT];
+        let mut filled = 0usize;
+        for e in self.front {
+            let x = e.value;
+            if x <= hint {
+                continue;
+            }
+            if filled == m {
+                if x >= best[m - 1] {
+                    continue;
+                }
+                filled -= 1;
+            }
+            let mut at = filled;
+            while at > 0 && x < best[at - 1] {
+                best[at] = best[at - 1];
+                at -= 1;
+            }
+            best[at] = x;
+            filled += 1;
+        }
+        best
+    }
+
+    /// `(m, smallest)` if the k-th largest candidate is among the front's
+    /// values above the hint and [`smallest_above_hint`](Self::smallest_above_hint)
+    /// can find it.
+    fn near_front(&self, k: usize) -> Option<(usize, [i32; NEAR_FRONT])> {
+        let above = self.above();
+        (k <= above && above - k < NEAR_FRONT).then(|| {
+            let m = above - k + 1;
+            (m, self.smallest_above_hint(m))
+        })
+    }
+
+    /// The largest candidate at or below the hint (all of them are below
+    /// any front value above it).
+    fn largest_from_hint(&self) -> Option<i32> {
+        if self.front_at_hint > 0 || self.hint_ties > 0 {
+            return Some(self.hint);
+        }
+        self.back
+            .iter()
+            .map(|e| e.value)
+            .max()
+            .or((self.low_ties > 0).then_some(self.low))
+    }
+
     /// The sum of the `m` largest candidates strictly below `v` (or of all
     /// of them if fewer), how many that is, and the smallest of them (`v`
     /// if none). The tiers are in decreasing order, so they are taken from
@@ -288,6 +347,34 @@ impl Tiers<'_> {
         };
         top.values(self.front, self.scratch);
         top.ties(self.hint, self.hint_ties);
+        top.values(self.back, self.scratch);
+        top.ties(self.low, self.low_ties);
+        (top.sum, top.taken, top.smallest)
+    }
+}
+
+impl Tiers<'_> {
+    /// [`top_below`](Self::top_below) when `below` holds, ascending, every
+    /// front value above the hint that is below `v` (and maybe copies of
+    /// `v`): they first, the largest first, then the hint's copies in the
+    /// front and its tie bucket, then the back and the low ties.
+    fn top_below_near(&mut self, v: i32, m: usize, below: &[i32]) -> (i64, usize, i32) {
+        let mut top = Top {
+            v,
+            m,
+            sum: 0,
+            taken: 0,
+            smallest: v,
+        };
+        for &x in below.iter().rev().filter(|&&x| x < v) {
+            if top.taken == m {
+                break;
+            }
+            top.sum += x as i64;
+            top.taken += 1;
+            top.smallest = x;
+        }
+        top.ties(self.hint, self.front_at_hint + self.hint_ties);
         top.values(self.back, self.scratch);
         top.ties(self.low, self.low_ties);
         (top.sum, top.taken, top.smallest)
@@ -374,6 +461,11 @@ fn kth_largest_in_place(values: &mut [i32], k: usize) -> i32 {
 /// array in one pass.
 const NEAR: usize = 8;
 
+/// Within this many of the front's smallest value above the hint, [`cut`]
+/// finds its order statistic in one pass over the front (see
+/// `Tiers::near_front`): the usual case, the cutoff being near the hint.
+const NEAR_FRONT: usize = 16;
+
 fn kth_largest_near_ends(values: &[i32], k: usize) -> i32 {
     if k <= NEAR {
         extreme::<true>(values.iter().copied(), k)
@@ -415,7 +507,10 @@ pub fn cut(rule: &WindowRule, c: &mut Tiers<'_>) -> Result<Cut, TooShallow> {
     let n = rule.n as usize;
     match rule.rule {
         SelectionRule::SubtractNext => {
-            let v = c.kth_largest(n + 1)?;
+            let v = match c.near_front(n + 1) {
+                Some((m, smallest)) => smallest[m - 1],
+                None => c.kth_largest(n + 1)?,
+            };
             Ok(Cut {
                 bound: v,
                 strict: true,
@@ -424,7 +519,10 @@ pub fn cut(rule: &WindowRule, c: &mut Tiers<'_>) -> Result<Cut, TooShallow> {
             })
         }
         SelectionRule::Threshold => {
-            let v = c.kth_largest(n)?;
+            let v = match c.near_front(n) {
+                Some((m, smallest)) => smallest[m - 1],
+                None => c.kth_largest(n)?,
+            };
             Ok(Cut {
                 bound: v,
                 strict: false,
@@ -433,8 +531,20 @@ pub fn cut(rule: &WindowRule, c: &mut Tiers<'_>) -> Result<Cut, TooShallow> {
             })
         }
         SelectionRule::SubtractNextDistinct => {
-            let v = c.kth_largest(n)?;
-            match c.largest_below(v) {
+            let (v, l) = match c.near_front(n) {
+                // Every front value below v is among the smallest; the rest
+                // of the candidates are at or below the hint.
+                Some((m, smallest)) => {
+                    let v = smallest[m - 1];
+                    let below = smallest[..m - 1].iter().rev().find(|&&x| x < v).copied();
+                    (v, below.or_else(|| c.largest_from_hint()))
+                }
+                None => {
+                    let v = c.kth_largest(n)?;
+                    (v, c.largest_below(v))
+                }
+            };
+            match l {
                 Some(l) => Ok(Cut {
                     bound: v,
                     strict: false,
@@ -451,9 +561,17 @@ pub fn cut(rule: &WindowRule, c: &mut Tiers<'_>) -> Result<Cut, TooShallow> {
             }
         }
         SelectionRule::SubtractMean { count } => {
-            let v = c.kth_largest(n)?;
             let m = count as usize;
-            let (sum, taken, smallest) = c.top_below(v, m);
+            let (v, (sum, taken, smallest)) = match c.near_front(n) {
+                Some((len, values)) => {
+                    let v = values[len - 1];
+                    (v, c.top_below_near(v, m, &values[..len - 1]))
+                }
+                None => {
+                    let v = c.kth_largest(n)?;
+                    (v, c.top_below(v, m))
+                }
+            };
             if taken < m && !c.complete {
                 return Err(TooShallow);
             }

@@ -651,9 +651,13 @@ impl<'c, 'm> Engine<'c, 'm> {
             if CHECK {
                 check_range(raw, self.max_raw)?;
             }
-            let calibrated = &mut self.calibrated[..raw.len()];
-            self.calibrator.calibrate(raw, pixel, calibrated);
-            window.moments.add_row(calibrated, i0, j);
+            // SAFETY: the segment lies in the camera (a window's row,
+            // validated configuration).
+            let (background, gain, fixed) =
+                unsafe { calibrate::run_maps::<S>(&self.config.calibration, pixel, raw.len()) };
+            window
+                .moments
+                .add_raw_row::<S>(raw, background, gain, fixed, i0, j);
             return Ok(());
         }
         if window.rescan {

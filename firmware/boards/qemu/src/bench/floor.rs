@@ -8,15 +8,17 @@
 //!   find, handed to it): background map in 1/16 count, weights `p - L` above
 //!   `L`, the three sums, and the same pre-filter as the engine (a row
 //!   segment whose raw pixels cannot reach `L` is skipped uncalibrated,
-//!   `engine::prefilter`, UQSUB16 on Cortex-M). Its slopes are the engine's
+//!   `UQSUB16` on Cortex-M), in one routine per camera row (`floor_row`,
+//!   written as tight as the engine's row kernel). Its slopes are the engine's
 //!   subtract-next slopes, bit for bit, which the benchmark checks: it does
 //!   the same work, less finding `L`.
-//! - [`FloorMode::CalibrateAll`]: the same without the pre-filter (every
-//!   pixel calibrated), the floor as first defined in the speed issue.
+//! - [`FloorMode::CalibrateAll`]: the same kernel without the pre-filter
+//!   (every pixel calibrated), the floor as first defined in the speed
+//!   issue: what the pre-filter saves.
 //! - [`FloorMode::AllPixels`]: every pixel weighs its value (the engine's
 //!   `N >= n`).
 
-use brightpix_firmware::engine::calibrate::{raw_floor, WindowBounds, FLOOR_NONE};
+use brightpix_firmware::engine::calibrate::{raw_floor, WindowBounds, With, FLOOR_NONE};
 use brightpix_firmware::engine::centroid::{Centroider, Moments};
 use brightpix_firmware::engine::SubapertureResult;
 use brightpix_protocol::Calibration;
@@ -172,7 +174,7 @@ impl<'a> Floor<'a> {
     /// loops.
     #[inline(never)]
     pub fn push_row(&mut self, y: usize, row: &[u16], out: &mut impl FnMut(SubapertureResult)) {
-        if self.mode == FloorMode::Skip {
+        if self.mode != FloorMode::AllPixels {
             return self.skip_push(y, row, out);
         }
         let (across, side, width) = (self.grid.across, self.grid.side, self.grid.width());
@@ -213,25 +215,19 @@ impl<'a> Floor<'a> {
             .zip(self.sums[..across].iter_mut())
             .zip(self.floors[..across].iter().zip(&self.row_levels[..across]));
         match self.mode {
-            FloorMode::Skip => unreachable!("push_row takes skip_push"),
-            FloorMode::CalibrateAll => {
-                for (((segment, bg), sums), (_, &level)) in windows {
-                    let (mut f, mut fi) = (0i32, 0i64);
-                    for (i, (&r, &b)) in segment.iter().zip(bg).enumerate() {
-                        let w = (((r as i32) << 4) - b - level).max(0);
-                        f += w;
-                        fi += w as i64 * i as i64;
-                    }
-                    sums.sum_w += f as i64;
-                    sums.sum_wi += fi;
-                    sums.sum_wj += j as i64 * f as i64;
-                }
-            }
+            FloorMode::Skip | FloorMode::CalibrateAll => unreachable!("push_row takes skip_push"),
             FloorMode::AllPixels => {
+                // The engine's own pass (there is nothing to select: the
+                // floor's work is the engine's).
                 for (((segment, bg), sums), _) in windows {
-                    for (i, (&r, &b)) in segment.iter().zip(bg).enumerate() {
-                        sums.add(((r as i32) << 4) - b, i as u16, j as u16);
-                    }
+                    sums.add_raw_row::<With<true, false, false>>(
+                        segment,
+                        bg,
+                        &[],
+                        i32::MIN,
+                        0,
+                        j as u16,
+                    );
                 }
             }
         }
@@ -319,7 +315,11 @@ impl<'a> Floor<'a> {
             );
             self.floors[sx] = floor;
             self.kernel[sx] = FloorWindow {
-                lanes: if floor == 0 || floor >= FLOOR_NONE {
+                lanes: if self.mode == FloorMode::CalibrateAll {
+                    // No pre-filter: every pixel but a raw 0 passes (a
+                    // figure of the work only: its results are not used).
+                    0
+                } else if floor == 0 || floor >= FLOOR_NONE {
                     u32::MAX
                 } else {
                     (floor - 1) * 0x0001_0001
@@ -328,7 +328,7 @@ impl<'a> Floor<'a> {
                 ..FloorWindow::default()
             };
         }
-        self.any_floor_zero = self.floors[..across].contains(&0);
+        self.any_floor_zero = self.mode == FloorMode::Skip && self.floors[..across].contains(&0);
         let range = self.kernel[..across].as_mut_ptr_range();
         self.args.windows = range.start;
         self.args.windows_end = range.end;
