@@ -41,6 +41,9 @@ mod workloads;
 
 use brightpix_board_qemu::{exit, exit_code};
 use brightpix_firmware::engine::calibrate::WindowBounds;
+use brightpix_firmware::engine::centroid::{
+    prefix_sums_background, prefix_sums_background_portable,
+};
 use brightpix_firmware::engine::prefilter::{
     any_at_least, any_at_least_portable, copy_words, copy_words_portable, uqsub16, uqsub16_portable,
 };
@@ -137,6 +140,15 @@ fn dsp_selftest() {
         copy_words_portable(&words[..n], &mut twin[..n]);
         if copied != twin {
             fail("the word copy differs from its portable twin");
+        }
+        let mut background = [0i32; 67];
+        for b in background.iter_mut() {
+            *b = ((rng.next() - 0.5) * 32.0 * top as f32) as i32;
+        }
+        // SAFETY: the background is as long as the run.
+        let sums = unsafe { prefix_sums_background(run, &background[..run.len()]) };
+        if sums != prefix_sums_background_portable(run, &background[..run.len()]) {
+            fail("the no-selection sums differ from their portable twin");
         }
     }
     if let Err(e) = check_row_kernel(0x2545_f491_4f6c_dd1d, 3_000) {
