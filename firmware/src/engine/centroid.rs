@@ -39,8 +39,10 @@ impl Moments {
     /// A row segment of raw pixels with weight = calibrated value (no
     /// selection): columns `i0..`, row `j`; `background`, `gain` and
     /// `threshold` as `calibrate::value_in_run` takes them, covering `raw`.
-    /// One pass: each pixel calibrated and summed (prefix sums for the
-    /// first moment, as [`add_row`](Self::add_row)).
+    /// One pass: each pixel calibrated and summed. The first moment without
+    /// a multiply per pixel: with prefix sums `S_k = p_0 + .. + p_k` and
+    /// `S = S_(n-1)`, `sum_k S_k = sum_k p_k (n - k)`, so `sum_k k p_k = n S -
+    /// sum_k S_k`.
     #[inline(always)]
     pub fn add_raw_row<S: Steps>(
         &mut self,
@@ -76,26 +78,6 @@ impl Moments {
         self.sum_wj += sum * j as i64;
     }
 
-    /// A row segment with weight = value (no selection): columns `i0..`, row `j`.
-    #[inline(always)]
-    pub fn add_row(&mut self, values: &[i32], i0: u16, j: u16) {
-        // sum(p * i) without a multiply per pixel: with prefix sums
-        // S_k = p_0 + .. + p_k and S = S_(n-1), sum_k S_k = sum_k p_k (n - k),
-        // so sum_k k p_k = n S - sum_k S_k. A segment is at most 64 values
-        // (a window's width) of |p| < 2^25, so every S_k fits 32 bits
-        // (|S_k| <= 64 (2^25 - 1) < 2^31); their sum needs 64.
-        let mut prefix = 0i32;
-        let mut prefix_sum = 0i64;
-        for &p in values {
-            prefix += p;
-            prefix_sum += prefix as i64;
-        }
-        let sum = prefix as i64;
-        let n = values.len() as i64;
-        self.sum_w += sum;
-        self.sum_wi += i0 as i64 * sum + (n * sum - prefix_sum);
-        self.sum_wj += sum * j as i64;
-    }
 }
 
 /// One sub-aperture's output for one frame (SPEC.md §6).
@@ -208,7 +190,7 @@ fn rounded_quotient_narrow(sum: i64, flux: i64) -> Option<i64> {
 
 /// For a segment calibrated with a background map only: the sum of the
 /// calibrated values `p_k = 16 r_k - B_k` and the sum of their prefix sums
-/// (`S_k = p_0 + .. + p_k`; see [`Moments::add_row`]). On Cortex-M, for a
+/// (`S_k = p_0 + .. + p_k`; see [`Moments::add_raw_row`]). On Cortex-M, for a
 /// word-aligned segment of whole words, two pixels in fourteen
 /// instructions (assembly); [`prefix_sums_background_portable`] is its
 /// twin, which the QEMU benchmark's self-test compares it with.
