@@ -46,7 +46,7 @@ pub fn any_at_least_portable(raw: &[u16], floor: u16) -> bool {
 
 /// The pixels of `raw` (at most 64) at or above `floor` as a bit mask: bit
 /// `k` for `raw[k] >= floor`; `floor >= 1`. The host's hot loop visits only
-/// those bits (`scan::admit_words_portable`).
+/// those bits (`scan::row_portable`).
 ///
 /// On x86-64, eight pixels per SSE2 step (`PSUBUSW` against `floor - 1`,
 /// `PCMPEQW`, `PMOVMSKB`), about a dozen instructions for a 16-pixel
@@ -106,67 +106,6 @@ mod sse2 {
             }
             mask
         }
-    }
-}
-
-/// Calls `f(k, r)` for each pixel `raw[k] = r` with `r >= floor`, in
-/// order, until `f` returns `false`; returns the offset after the pixel that
-/// stopped it, or `raw.len()`.
-///
-/// On Cortex-M, two pixels at a time: a pair whose `UQSUB16` against
-/// `floor - 1` is zero is skipped with three instructions.
-#[inline(always)]
-pub fn for_each_at_least(raw: &[u16], floor: u16, mut f: impl FnMut(usize, u16) -> bool) -> usize {
-    if floor == 0 {
-        for (k, &r) in raw.iter().enumerate() {
-            if !f(k, r) {
-                return k + 1;
-            }
-        }
-        return raw.len();
-    }
-    let below = floor - 1;
-    #[cfg(target_arch = "arm")]
-    {
-        let lanes = below as u32 * 0x0001_0001;
-        // SAFETY: any pair of u16 is a valid u32; align_to only splits the
-        // slice where the words are aligned.
-        let (head, words, tail) = unsafe { raw.align_to::<u32>() };
-        let mut k = 0;
-        for &r in head {
-            if r > below && !f(k, r) {
-                return k + 1;
-            }
-            k += 1;
-        }
-        for &w in words {
-            if uqsub16(w, lanes) != 0 {
-                let (lo, hi) = (w as u16, (w >> 16) as u16);
-                if lo > below && !f(k, lo) {
-                    return k + 1;
-                }
-                if hi > below && !f(k + 1, hi) {
-                    return k + 2;
-                }
-            }
-            k += 2;
-        }
-        for &r in tail {
-            if r > below && !f(k, r) {
-                return k + 1;
-            }
-            k += 1;
-        }
-        raw.len()
-    }
-    #[cfg(not(target_arch = "arm"))]
-    {
-        for (k, &r) in raw.iter().enumerate() {
-            if r > below && !f(k, r) {
-                return k + 1;
-            }
-        }
-        raw.len()
     }
 }
 
