@@ -68,10 +68,20 @@ fn overlapping() -> Vec<SubapertureWindow> {
 }
 
 fn case(windows: Vec<SubapertureWindow>, rule: SelectionRule, n: u16, filter: bool) -> Case {
+    case_at(windows, rule, n, filter, 12)
+}
+
+fn case_at(
+    windows: Vec<SubapertureWindow>,
+    rule: SelectionRule,
+    n: u16,
+    filter: bool,
+    bit_depth: u8,
+) -> Case {
     let camera = Camera {
         width: SIDE * ACROSS,
         height: SIDE * ACROSS,
-        bit_depth: 12,
+        bit_depth,
     };
     Case {
         camera,
@@ -214,6 +224,7 @@ fn add(total: &mut EngineStats, s: EngineStats) {
     total.candidates += s.candidates;
     total.compactions += s.compactions;
     total.rescans += s.rescans;
+    total.attentions += s.attentions;
 }
 
 #[test]
@@ -225,9 +236,16 @@ fn every_seed_path_agrees_with_the_reference() {
                 if filter && !rule.subtracts() {
                     continue;
                 }
-                let c = case(grid(), rule, n, filter);
-                add(&mut total, run(&c, None, 7 + n as u64));
-                add(&mut total, run(&c, Some(7), 7 + n as u64));
+                // 12 bits: the row kernel with its range check, whole rows
+                // only; 16 bits: without, and for the windows wholly inside
+                // a chunk (chunks of 7 pixels fall inside none of these,
+                // of 38 some).
+                for bit_depth in [12, 16] {
+                    let c = case_at(grid(), rule, n, filter, bit_depth);
+                    add(&mut total, run(&c, None, 7 + n as u64));
+                    add(&mut total, run(&c, Some(7), 7 + n as u64));
+                    add(&mut total, run(&c, Some(38), 7 + n as u64));
+                }
             }
         }
     }
@@ -235,6 +253,10 @@ fn every_seed_path_agrees_with_the_reference() {
     // seeds stopped driving a path, this test would no longer test it).
     assert!(total.rescans > 0, "no window was rescanned: {total:?}");
     assert!(total.compactions > 0, "no buffer was compacted: {total:?}");
+    assert!(
+        total.attentions > 0,
+        "the row kernel never stopped at a window: {total:?}"
+    );
     assert!(total.windows > 0);
 }
 

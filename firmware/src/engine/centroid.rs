@@ -77,7 +77,6 @@ impl Moments {
         self.sum_wi += i0 as i64 * sum + (n * sum - prefix_sum);
         self.sum_wj += sum * j as i64;
     }
-
 }
 
 /// One sub-aperture's output for one frame (SPEC.md §6).

@@ -77,6 +77,9 @@ pub struct EngineStats {
     pub compactions: u32,
     /// Windows computed again from the row history.
     pub rescans: u32,
+    /// Times the row kernel stopped at a window for the engine's
+    /// attention (`Engine::attend`).
+    pub attentions: u32,
 }
 
 /// The streaming brightest-pixel engine for one configuration.
@@ -718,6 +721,7 @@ impl<'c, 'm> Engine<'c, 'm> {
     /// then takes the general path, which compacts it when full).
     #[inline(never)]
     fn attend(&mut self, k: usize) {
+        self.stats.attentions = self.stats.attentions.wrapping_add(1);
         let window = &mut self.memory.open[k];
         raise_to_hint(window, &self.config, self.max_raw);
         window.attention = attention(window, self.config.selection.rule);

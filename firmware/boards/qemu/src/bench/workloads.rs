@@ -408,6 +408,7 @@ pub fn measure(
         candidates: after.candidates - before.candidates,
         compactions: after.compactions - before.compactions,
         rescans: after.rescans - before.rescans,
+        attentions: after.attentions - before.attentions,
     };
     Ok(m)
 }
