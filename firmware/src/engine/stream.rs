@@ -435,14 +435,15 @@ impl<'c, 'm> Engine<'c, 'm> {
     }
 
     /// The row kernel over the open windows `k .. end` (all
-    /// `kernel_ready`), of the current row at `row_address` (word-aligned),
-    /// at 16 bits (no pixel can be out of range).
+    /// `kernel_ready`), of the current row at `row_address` (word-aligned).
+    /// On a pixel out of range (`CHECK`), the index of its window and its
+    /// address.
     fn kernel_run<S: Steps, const CHECK: bool>(
         &mut self,
         row_address: usize,
         k: usize,
         end: usize,
-    ) {
+    ) -> Option<(usize, usize)> {
         const SIZE: usize = core::mem::size_of::<OpenWindow>();
         let (first, all) = (self.scan.first, self.scan.end);
         self.scan.row = row_address;
@@ -453,14 +454,23 @@ impl<'c, 'm> Engine<'c, 'm> {
             .wrapping_sub((row_address >> 1) as u32);
         self.scan.first = first + k * SIZE;
         self.scan.end = first + end * SIZE;
-        // SAFETY: the windows `k .. end` are kernel-ready and their
-        // segments lie in the part of the row the caller holds.
-        while let RowStop::Attention(address) = unsafe { scan::row::<S, CHECK>(&mut self.scan) } {
-            self.attend((address - first) / SIZE);
-            self.scan.first = address + SIZE;
-        }
+        let stopped = loop {
+            // SAFETY: the windows `k .. end` are kernel-ready and their
+            // segments lie in the part of the row the caller holds.
+            match unsafe { scan::row::<S, CHECK>(&mut self.scan) } {
+                RowStop::Done => break None,
+                RowStop::Attention(address) => {
+                    self.attend((address - first) / SIZE);
+                    self.scan.first = address + SIZE;
+                }
+                RowStop::OutOfRange { window, pixel } => {
+                    break Some(((window - first) / SIZE, pixel))
+                }
+            }
+        };
         self.scan.first = first;
         self.scan.end = all;
+        stopped
     }
 
     /// A pixel out of range in window `k`'s segment of a gapless row: the
@@ -534,31 +544,62 @@ impl<'c, 'm> Engine<'c, 'm> {
         // Columns checked against the bit depth so far.
         let mut checked = start;
         let mut k = self.cursor;
-        // The row's first pixel's address, if word-aligned: then (at 16
-        // bits, where no pixel can be out of range) the windows wholly
-        // inside the part take the row kernel.
+        // The row's first pixel's address, if word-aligned: then the windows
+        // wholly inside the part take the row kernel, in runs (below 16
+        // bits, runs of windows without gaps between them, the gap before
+        // a run checked first, so that the first pixel out of range is
+        // still found in raster order).
         let row_address = (part.as_ptr() as usize).wrapping_sub(2 * start as usize);
-        let kernel = !CHECK && row_address & 3 == 0;
+        let kernel = row_address & 3 == 0;
         while k < self.open_len {
             if kernel {
-                let inside = |w: &OpenWindow| {
+                let inside = |w: &OpenWindow, end: u16| {
                     w.segment_start != w.segment_end && w.x >= start && w.end_column <= end
                 };
-                if inside(&self.memory.open[k]) {
+                let x = self.memory.open[k].x;
+                if inside(&self.memory.open[k], end) {
+                    if CHECK && bad.is_none() && x > checked {
+                        let gap = (checked - start) as usize..(x - start) as usize;
+                        if let Err(b) = check_range(&part[gap.clone()], self.max_raw) {
+                            bad = Some(gap.start + b);
+                            end = start + (gap.start + b) as u16;
+                        }
+                    }
+                }
+                if inside(&self.memory.open[k], end) {
                     let mut run_end = k + 1;
-                    while run_end < self.open_len && inside(&self.memory.open[run_end]) {
+                    while run_end < self.open_len
+                        && inside(&self.memory.open[run_end], end)
+                        && (!CHECK
+                            || self.memory.open[run_end].x
+                                == self.memory.open[run_end - 1].end_column)
+                    {
                         run_end += 1;
                     }
-                    self.kernel_run::<S, CHECK>(row_address, k, run_end);
-                    for j in k..run_end {
+                    let done = match self.kernel_run::<S, CHECK>(row_address, k, run_end) {
+                        None => run_end,
+                        Some((w, pixel)) => {
+                            let b = (pixel - part.as_ptr() as usize) / 2;
+                            bad = Some(b);
+                            end = start + b as u16;
+                            w
+                        }
+                    };
+                    for j in k..done {
                         if self.memory.open[j].last_row == row {
                             self.finish(j, sink);
                         }
                     }
-                    if self.cursor == k {
-                        self.cursor = run_end;
+                    if CHECK && done > k {
+                        checked = checked.max(self.memory.open[done - 1].end_column);
                     }
-                    k = run_end;
+                    if self.cursor == k {
+                        self.cursor = done;
+                    }
+                    // On a pixel out of range, its window is abandoned with
+                    // the frame (and every window after it in the run
+                    // starts after that pixel).
+                    k = if done < run_end { done + 1 } else { done };
                     continue;
                 }
             }

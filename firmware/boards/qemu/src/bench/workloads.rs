@@ -33,6 +33,9 @@ pub struct Workload {
     pub frames: usize,
     /// Also measure the paper's sort per sub-aperture.
     pub sort: bool,
+    /// Pixels pushed at a time (a camera's DMA runs, which need not follow
+    /// rows); `None`: one camera row per push.
+    pub chunk: Option<usize>,
 }
 
 /// The CANARY defaults: 7x7 windows of 16x16, subtract-next N = 20, a
@@ -52,6 +55,7 @@ pub const CANARY: Workload = Workload {
     warmup: 8,
     frames: 8,
     sort: true,
+    chunk: None,
 };
 
 /// Every workload of the speed issue.
@@ -84,6 +88,15 @@ pub const ALL: &[Workload] = &[
     Workload {
         name: "canary-8bit-n20",
         bit_depth: 8,
+        sort: false,
+        ..CANARY
+    },
+    // As the STM32H743's DCMI delivers them: 12-bit pixels in runs of
+    // 256 words (512 pixels) that need not follow rows.
+    Workload {
+        name: "canary-12bit-runs-512",
+        bit_depth: 12,
+        chunk: Some(512),
         sort: false,
         ..CANARY
     },
@@ -292,22 +305,25 @@ pub fn measure(
     for _ in 0..w.frames {
         generator.frame(frame);
         sort::levels(frame, background, grid, w.n as usize, b.levels);
-        // The engine.
+        // The engine: rows, or runs of `chunk` pixels across rows.
         let results = &mut *b.engine_results;
-        for (y, row) in frame.chunks_exact(width).enumerate() {
+        let step = w.chunk.unwrap_or(width);
+        let last_row_start = pixels - width;
+        for (c, run) in frame.chunks(step).enumerate() {
             let (count, pushed) = meter.count(|| {
-                engine.push(row, &mut |r: SubapertureResult| {
+                engine.push(run, &mut |r: SubapertureResult| {
                     results[r.index as usize] = r
                 })
             });
             if pushed.is_err() {
                 return Err(Mismatch {
                     what: "the engine refused a generated pixel",
-                    index: y,
+                    index: c,
                 });
             }
             m.engine += count;
-            if y == width - 1 {
+            // The pushes that carry the frame's last row.
+            if (c + 1) * step > last_row_start {
                 m.engine_last_row += count / w.frames as f64;
             }
         }
