@@ -557,13 +557,11 @@ impl<'c, 'm> Engine<'c, 'm> {
                     w.segment_start != w.segment_end && w.x >= start && w.end_column <= end
                 };
                 let x = self.memory.open[k].x;
-                if inside(&self.memory.open[k], end) {
-                    if CHECK && bad.is_none() && x > checked {
-                        let gap = (checked - start) as usize..(x - start) as usize;
-                        if let Err(b) = check_range(&part[gap.clone()], self.max_raw) {
-                            bad = Some(gap.start + b);
-                            end = start + (gap.start + b) as u16;
-                        }
+                if CHECK && bad.is_none() && x > checked && inside(&self.memory.open[k], end) {
+                    let gap = (checked - start) as usize..(x - start) as usize;
+                    if let Err(b) = check_range(&part[gap.clone()], self.max_raw) {
+                        bad = Some(gap.start + b);
+                        end = start + (gap.start + b) as u16;
                     }
                 }
                 if inside(&self.memory.open[k], end) {
