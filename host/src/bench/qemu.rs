@@ -56,7 +56,10 @@ pub struct QemuRow {
     /// `cortex-m4` or `cortex-m7`.
     pub core: String,
     pub instr_per_px: f64,
-    pub floor_instr_per_px: f64,
+    /// The honest floor's, for the built-in workloads; `null` (`None`) for
+    /// a user's configuration, whose windows need not be a grid the floor
+    /// handles.
+    pub floor_instr_per_px: Option<f64>,
     /// Instructions from the last row's arrival to the frame's last result.
     pub last_row_instructions: f64,
     #[serde(default)]
@@ -69,9 +72,10 @@ pub struct QemuRow {
 }
 
 impl QemuRow {
-    /// The engine's instructions over the floor's.
-    pub fn x_floor(&self) -> f64 {
-        self.instr_per_px / self.floor_instr_per_px
+    /// The engine's instructions over the floor's, if there is one.
+    pub fn x_floor(&self) -> Option<f64> {
+        self.floor_instr_per_px
+            .map(|floor| self.instr_per_px / floor)
     }
 }
 
@@ -236,7 +240,7 @@ mod tests {
         let rows = parse_bench_lines(text).unwrap();
         assert_eq!(rows.len(), 1);
         assert_eq!(rows[0].core, "cortex-m4");
-        assert_eq!(rows[0].x_floor(), 19.5 / 8.0);
+        assert_eq!(rows[0].x_floor(), Some(19.5 / 8.0));
         assert_eq!(rows[0].extra["note"], "x");
         assert!(parse_bench_lines("BENCH {\"workload\": 1}").is_err());
     }

@@ -272,9 +272,9 @@ fn qemu_table(rows: &[QemuRow]) -> String {
                 .find(|r| r.workload == workload && r.core == core.name())
             {
                 Some(r) => out.push_str(&format!(
-                    " {:>9.2} {:>7.2} {:>10.0}  ",
+                    " {:>9.2} {:>7} {:>10.0}  ",
                     r.instr_per_px,
-                    r.x_floor(),
+                    r.x_floor().map_or("-".into(), |x| format!("{x:.2}")),
                     r.last_row_instructions
                 )),
                 None => out.push_str(&format!(" {:>9} {:>7} {:>10}  ", "-", "-", "-")),
@@ -303,12 +303,15 @@ fn capacity_report(
             continue;
         };
         let capacity = Capacity::of(row, args.mhz);
+        let floor = row
+            .x_floor()
+            .map_or(String::new(), |x| format!(" ({x:.2}x the floor)"));
         out.push_str(&format!(
-            "  {} at {} MHz: {:.2} instructions/pixel ({:.2}x the floor) -> {:.1} Mpx/s per board; {:.1} us after the last row ({:.0} instructions)\n",
+            "  {} at {} MHz: {:.2} instructions/pixel{} -> {:.1} Mpx/s per board; {:.1} us after the last row ({:.0} instructions)\n",
             core.name(),
             args.mhz,
             row.instr_per_px,
-            row.x_floor(),
+            floor,
             capacity.px_per_s * 1e-6,
             capacity.latency_us,
             row.last_row_instructions
