@@ -365,15 +365,6 @@ impl<'c, 'm> Engine<'c, 'm> {
             return self.push_whole_row_general::<S, CHECK>(row_pixels, sink);
         }
         let row = self.row;
-        self.scan.row = row_address;
-        self.scan.bg_delta = self.bg_row.wrapping_sub(2 * row_address).wrapping_sub(16);
-        self.scan.position_delta = self
-            .position_row
-            .wrapping_sub(4)
-            .wrapping_sub((row_address >> 1) as u32);
-        const SIZE: usize = core::mem::size_of::<OpenWindow>();
-        let first = self.scan.first;
-        let all = self.scan.end;
         let mut k = 0;
         while k < self.open_len {
             let ready = |w: &OpenWindow| w.segment_start != w.segment_end;
@@ -383,8 +374,7 @@ impl<'c, 'm> Engine<'c, 'm> {
                 let w = &self.memory.open[k];
                 let (x, end, y) = (w.x as usize, w.end_column as usize, w.y);
                 let pixel = row as usize * row_pixels.len() + x;
-                if let Err(b) = self.segment::<S, CHECK>(k, &row_pixels[x..end], pixel, 0, row - y)
-                {
+                if let Err(b) = self.segment::<S, CHECK>(k, &row_pixels[x..end], pixel, 0, row - y) {
                     self.finish_before(k, sink);
                     return Err(x + b);
                 }
@@ -399,31 +389,12 @@ impl<'c, 'm> Engine<'c, 'm> {
                 }
                 end
             };
-            self.scan.first = first + k * SIZE;
-            self.scan.end = first + end * SIZE;
-            loop {
-                // SAFETY: the arguments are made from the row, its maps and
-                // the open windows; every window of the run is
-                // `kernel_ready`: word-aligned in this aligned row, with
-                // room for a segment.
-                match unsafe { scan::row::<S, CHECK>(&mut self.scan) } {
-                    RowStop::Done => break,
-                    RowStop::Attention(address) => {
-                        self.attend((address - first) / SIZE);
-                        self.scan.first = address + SIZE;
-                    }
-                    RowStop::OutOfRange { window, pixel } => {
-                        self.scan.first = first;
-                        self.scan.end = all;
-                        self.finish_before((window - first) / SIZE, sink);
-                        return Err((pixel - row_address) / 2);
-                    }
-                }
+            if let Some((window, pixel)) = self.kernel_run::<S, CHECK>(row_address, k, end) {
+                self.finish_before(window, sink);
+                return Err((pixel - row_address) / 2);
             }
             k = end;
         }
-        self.scan.first = first;
-        self.scan.end = all;
         if row == self.next_last_row {
             for k in 0..self.open_len {
                 if self.memory.open[k].last_row == row {
