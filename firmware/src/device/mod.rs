@@ -14,7 +14,7 @@
 //!
 //! and runs it:
 //!
-//! ```ignore
+//! ```text
 //! type Storage = DeviceStorage<256, { 128 * 128 }, 16, { 16 * 74 }, { 16 * 128 }, 256, 64>;
 //! static STORAGE: ConstStaticCell<Storage> = ConstStaticCell::new(Storage::new());
 //!
