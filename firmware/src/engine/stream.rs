@@ -374,7 +374,8 @@ impl<'c, 'm> Engine<'c, 'm> {
                 let w = &self.memory.open[k];
                 let (x, end, y) = (w.x as usize, w.end_column as usize, w.y);
                 let pixel = row as usize * row_pixels.len() + x;
-                if let Err(b) = self.segment::<S, CHECK>(k, &row_pixels[x..end], pixel, 0, row - y) {
+                if let Err(b) = self.segment::<S, CHECK>(k, &row_pixels[x..end], pixel, 0, row - y)
+                {
                     self.finish_before(k, sink);
                     return Err(x + b);
                 }
