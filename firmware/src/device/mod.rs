@@ -36,28 +36,32 @@
 //! store it: [`Device::run`] builds it from the active slot (with
 //! `Engine::resume`, which keeps the level filters; `Engine::new` after a
 //! new configuration) and rebuilds it after a swap.
+//!
+//! Here: the loop, the session and the requests; in `upload`, a
+//! configuration's upload into the staging slot; in `pixels`, frames into
+//! the engine and results back.
 
 mod fmt;
+mod pixels;
 pub mod source;
 pub mod storage;
+mod upload;
 pub mod vet;
 pub mod watchdog;
 
 use core::convert::Infallible;
 
 use brightpix_protocol::wire::{
-    decode_body, encode, hello_in_body, unstuff, Ack, Background, Capabilities, ConfigHeader,
-    Crc32Digest, DeviceError, DeviceMessage, FrameFault, FrameReader, Health, Hello, HelloReply,
-    HostMessage, MessageKind, PixelSourceKind, Received, ResetReason, SlopeEntry, SlopeList,
-    Status, Table, TablePosition, WireError, CRC32, MAX_BOARD_NAME_LEN, MAX_CHUNK_BYTES,
-    MAX_FRAME_LEN, SLOPES_PER_MESSAGE,
+    decode_body, encode, hello_in_body, unstuff, Ack, Capabilities, DeviceError, DeviceMessage,
+    FrameFault, FrameReader, Health, Hello, HelloReply, HostMessage, MessageKind, PixelSourceKind,
+    Received, ResetReason, Status, WireError, MAX_BOARD_NAME_LEN, MAX_FRAME_LEN,
 };
-use brightpix_protocol::wire::{tables, CapacityKind};
 use embassy_futures::select::{select, select3, Either, Either3};
 use embedded_io_async::{Read, Write};
 
-use crate::engine::{Engine, EngineMemory, FrameError, OutputSink, SubapertureResult};
+use crate::engine::{Engine, EngineMemory, OutputSink, SubapertureResult};
 use fmt::{log_debug, log_info, log_warn};
+use upload::Upload;
 
 pub use embedded_io_async;
 pub use source::{CameraRefused, LinkOnly, PixelRowsStream, PixelRun, PixelSource};
@@ -120,14 +124,6 @@ struct Core<'d, T, W> {
 struct Applying {
     config_id: u32,
     digest: u32,
-}
-
-struct Upload {
-    id: u32,
-    header: ConfigHeader,
-    /// Where the next chunk must start; `None` when all tables are complete.
-    next: Option<TablePosition>,
-    digest: Crc32Digest,
 }
 
 #[derive(Clone, Copy)]
@@ -642,322 +638,6 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
         }
     }
 
-    // --- upload -------------------------------------------------------------
-
-    fn begin(
-        &mut self,
-        upload_id: u32,
-        header: ConfigHeader,
-        staging: &mut ConfigSlot<'_>,
-    ) -> Result<u32, DeviceError> {
-        // A new upload always discards the one in progress, even if refused.
-        self.upload = None;
-        staging.header = None;
-        vet::check_header(&header, &self.capabilities)?;
-        // The digest covers the header too (PROTOCOL.md §7).
-        let mut digest = CRC32.digest();
-        let mut encoded = [0u8; ConfigHeader::MAX_ENCODED_LEN];
-        digest.update(header.encode(&mut encoded));
-        self.upload = Some(Upload {
-            id: upload_id,
-            header,
-            next: header
-                .next_table(0)
-                .map(|table| TablePosition { table, offset: 0 }),
-            digest,
-        });
-        log_debug!("device: upload {=u32} started", upload_id);
-        Ok(upload_id)
-    }
-
-    /// The upload in progress, if `upload_id` is its id.
-    fn upload_for(&mut self, upload_id: u32) -> Result<&mut Upload, DeviceError> {
-        match &mut self.upload {
-            None => Err(DeviceError::NoUpload),
-            Some(u) if u.id != upload_id => Err(DeviceError::UploadMismatch {
-                expected: u.id,
-                found: upload_id,
-            }),
-            Some(u) => Ok(u),
-        }
-    }
-
-    fn chunk(
-        &mut self,
-        upload_id: u32,
-        table: Table,
-        offset: u32,
-        bytes: &[u8],
-        staging: &mut ConfigSlot<'_>,
-    ) -> Result<Ack, DeviceError> {
-        let upload = self.upload_for(upload_id)?;
-        let result = store_chunk(upload, table, offset, bytes, staging);
-        if result.is_err() {
-            // A chunk out of place means lost data: start again.
-            self.upload = None;
-        }
-        result
-    }
-
-    fn commit(
-        &mut self,
-        upload_id: u32,
-        claimed: u32,
-        staging: &mut ConfigSlot<'_>,
-    ) -> Result<(), DeviceError> {
-        self.upload_for(upload_id)?;
-        let Some(upload) = self.upload.take() else {
-            return Err(DeviceError::NoUpload);
-        };
-        let header = upload.header;
-        if let Some(position) = upload.next {
-            return Err(DeviceError::UploadIncomplete {
-                table: position.table,
-                received: position.offset,
-                expected: header.table_len(position.table).map_or(0, saturate),
-            });
-        }
-        let computed = upload.digest.finalize();
-        if computed != claimed {
-            return Err(DeviceError::UploadCrc { computed, claimed });
-        }
-        if let Background::Constant(value) = header.background {
-            // A constant background arrives as one value: the engine reads a map.
-            if let Some(map) = staging.background.get_mut(..header.camera.pixel_count()) {
-                map.fill(value);
-            }
-        }
-        let config = staging.config_with(&header).ok_or(DeviceError::Capacity {
-            what: CapacityKind::Subapertures,
-            needed: header.windows,
-            available: self.capabilities.max_subapertures,
-        })?;
-        vet::check_config(&config, &self.capabilities, self.order, self.scratch)?;
-        staging.header = Some(header);
-        Ok(())
-    }
-
-    // --- pixels ---------------------------------------------------------------
-
-    /// Pixels as u16 LE bytes (even length), converted a batch at a time.
-    async fn feed_le(
-        &mut self,
-        engine: &mut Engine<'_, '_>,
-        frame: u32,
-        first_pixel: u32,
-        bytes: &[u8],
-    ) -> LinkResult<(), T::Error> {
-        let buffer = core::mem::take(&mut self.pixels);
-        let batch = buffer.len().max(1) * 2;
-        let mut first = first_pixel;
-        let mut result = Ok(());
-        for part in bytes.chunks(batch) {
-            let n = tables::pixels_from_le(part, buffer);
-            result = self.feed(engine, frame, first, &buffer[..n]).await;
-            if result.is_err() || n == 0 {
-                break;
-            }
-            first = first.wrapping_add(n as u32);
-        }
-        self.pixels = buffer;
-        result
-    }
-
-    /// Pixels `first_pixel ..` of frame `frame`.
-    async fn feed(
-        &mut self,
-        engine: &mut Engine<'_, '_>,
-        frame: u32,
-        first_pixel: u32,
-        pixels: &[u16],
-    ) -> LinkResult<(), T::Error> {
-        if pixels.is_empty() {
-            return Ok(());
-        }
-        let camera = engine.config().camera;
-        match self.frame {
-            Some(p) if p.frame == frame && p.next == first_pixel => {}
-            _ if first_pixel == 0 => {
-                if let Some(p) = self.frame {
-                    let received = p.next;
-                    self.drop_frame(engine, FrameFault::Incomplete { received })
-                        .await?;
-                }
-                self.skipping = None;
-                self.frame = Some(FrameProgress {
-                    frame,
-                    next: 0,
-                    sent: 0,
-                });
-            }
-            _ => {
-                if self.skipping == Some(frame) {
-                    return Ok(());
-                }
-                bump(&mut self.counters.overruns, 1);
-                let mut expected = 0;
-                if let Some(p) = self.frame {
-                    if p.frame == frame {
-                        expected = p.next;
-                        self.abandon(engine).await?;
-                    } else {
-                        let received = p.next;
-                        self.drop_frame(engine, FrameFault::Incomplete { received })
-                            .await?;
-                    }
-                }
-                self.skipping = Some(frame);
-                log_debug!("device: frame {=u32}: gap", frame);
-                return self
-                    .send_error(DeviceError::Frame {
-                        frame,
-                        fault: FrameFault::Gap {
-                            expected,
-                            found: first_pixel,
-                        },
-                    })
-                    .await;
-            }
-        }
-        let total = camera.pixel_count() as u64;
-        if first_pixel as u64 + pixels.len() as u64 > total {
-            self.abandon(engine).await?;
-            self.skipping = Some(frame);
-            return self
-                .send_error(DeviceError::Frame {
-                    frame,
-                    fault: FrameFault::PastEnd {
-                        first_pixel,
-                        count: saturate(pixels.len()),
-                    },
-                })
-                .await;
-        }
-        let width = camera.width as usize;
-        let mut rest = pixels;
-        while !rest.is_empty() {
-            let (_, column) = engine.position();
-            let take = rest.len().min(width - column as usize);
-            let mut sink = QueueSink {
-                results: self.results,
-                queued: &mut self.queued,
-                lost: 0,
-                done: false,
-            };
-            let pushed = engine.push(&rest[..take], &mut sink);
-            let (lost, done) = (sink.lost, sink.done);
-            bump(&mut self.counters.overruns, lost);
-            if let Err(FrameError::PixelOutOfRange { row, column, value }) = pushed {
-                // The engine has abandoned the frame (SPEC.md §8); results
-                // already finished stand.
-                self.flush(frame, true).await?;
-                self.frame = None;
-                self.skipping = Some(frame);
-                bump(&mut self.counters.pixel_errors, 1);
-                self.counters.frames_dropped += 1;
-                return self
-                    .send_error(DeviceError::Frame {
-                        frame,
-                        fault: FrameFault::PixelOutOfRange { row, column, value },
-                    })
-                    .await;
-            }
-            if let Some(p) = &mut self.frame {
-                p.next += take as u32;
-            }
-            rest = &rest[take..];
-            let row_done = column as usize + take == width;
-            self.flush(frame, row_done).await?;
-            if done {
-                let sent = self.frame.take().map_or(0, |p| p.sent);
-                self.counters.frames_processed += 1;
-                self.log_progress();
-                self.send(&DeviceMessage::FrameDone { frame, count: sent })
-                    .await?;
-                if let Some(capture) = &mut self.capture {
-                    capture.done += 1;
-                    if capture.frames != 0 && capture.done >= capture.frames {
-                        self.capture_finished = true;
-                    }
-                }
-            }
-        }
-        Ok(())
-    }
-
-    /// Logs the counters after the first frame and every
-    /// [`STATUS_LOG_FRAMES`].
-    fn log_progress(&self) {
-        let c = &self.counters;
-        if c.frames_processed == 1 || c.frames_processed.is_multiple_of(STATUS_LOG_FRAMES) {
-            log_info!(
-                "device: {=u64} frames processed, {=u64} dropped; {=u32} CRC errors, {=u32} decode errors, {=u32} overruns, {=u32} pixel errors",
-                c.frames_processed,
-                c.frames_dropped,
-                c.crc_errors,
-                c.decode_errors,
-                c.overruns,
-                c.pixel_errors
-            );
-        }
-    }
-
-    /// Sends the queued results of `frame`: whole messages, or all if `all`.
-    async fn flush(&mut self, frame: u32, all: bool) -> LinkResult<(), T::Error> {
-        let mut start = 0;
-        while self.queued - start >= SLOPES_PER_MESSAGE || (all && self.queued > start) {
-            let n = (self.queued - start).min(SLOPES_PER_MESSAGE);
-            let mut results = SlopeList::new();
-            for r in &self.results[start..start + n] {
-                let _ = results.push(SlopeEntry {
-                    index: r.index,
-                    slope_x: r.slope_x,
-                    slope_y: r.slope_y,
-                    flux: r.flux,
-                    valid: r.valid,
-                });
-            }
-            start += n;
-            if let Some(p) = &mut self.frame {
-                p.sent += n as u32;
-            }
-            self.send(&DeviceMessage::Slopes { frame, results }).await?;
-        }
-        self.results.copy_within(start..self.queued, 0);
-        self.queued -= start;
-        Ok(())
-    }
-
-    /// Abandons the frame in progress, if any, without reporting it; its
-    /// remaining pixels will be ignored.
-    async fn abandon(&mut self, engine: &mut Engine<'_, '_>) -> LinkResult<(), T::Error> {
-        if let Some(p) = self.frame.take() {
-            self.flush(p.frame, true).await?;
-            engine.abort_frame();
-            self.counters.frames_dropped += 1;
-            self.skipping = Some(p.frame);
-        }
-        Ok(())
-    }
-
-    /// Abandons the frame in progress, if any, and reports why.
-    async fn drop_frame(
-        &mut self,
-        engine: &mut Engine<'_, '_>,
-        fault: FrameFault,
-    ) -> LinkResult<(), T::Error> {
-        if let Some(p) = self.frame {
-            self.abandon(engine).await?;
-            log_debug!("device: frame {=u32} dropped", p.frame);
-            self.send_error(DeviceError::Frame {
-                frame: p.frame,
-                fault,
-            })
-            .await?;
-        }
-        Ok(())
-    }
-
     // --- output ---------------------------------------------------------------
 
     async fn send_error(&mut self, error: DeviceError) -> LinkResult<(), T::Error> {
@@ -1003,95 +683,6 @@ fn unreachable_hello() -> Result<Ack, DeviceError> {
     Err(DeviceError::Unexpected {
         message: MessageKind::Hello,
     })
-}
-
-/// Checks a chunk against the upload's position and stores its elements.
-fn store_chunk(
-    upload: &mut Upload,
-    table: Table,
-    offset: u32,
-    bytes: &[u8],
-    staging: &mut ConfigSlot<'_>,
-) -> Result<Ack, DeviceError> {
-    let found = TablePosition { table, offset };
-    if upload.next != Some(found) {
-        return Err(DeviceError::ChunkOutOfOrder {
-            expected: upload.next,
-            found,
-        });
-    }
-    let size = table.element_size();
-    let len = bytes.len();
-    if len == 0 || len / size * size != len || len > MAX_CHUNK_BYTES {
-        return Err(DeviceError::ChunkLength {
-            table,
-            len: saturate(len),
-        });
-    }
-    let table_len = upload.header.table_len(table).unwrap_or(0);
-    let end = offset as usize + len;
-    if end > table_len {
-        return Err(DeviceError::ChunkPastEnd {
-            table,
-            end: saturate(end),
-            len: saturate(table_len),
-        });
-    }
-    let first = offset as usize / size;
-    let range = first..first + len / size;
-    let stored = match table {
-        Table::Windows => fill(staging.windows.get_mut(range), bytes, tables::read_window),
-        Table::PixelCounts => fill(staging.pixel_counts.get_mut(range), bytes, |b| {
-            u16::from_le_bytes([b[0], b[1]])
-        }),
-        Table::Background => fill(staging.background.get_mut(range), bytes, |b| {
-            i32::from_le_bytes([b[0], b[1], b[2], b[3]])
-        }),
-        Table::Gain => fill(staging.gain.get_mut(range), bytes, |b| {
-            u16::from_le_bytes([b[0], b[1]])
-        }),
-        Table::ReferenceSlopes => fill(
-            staging.reference_slopes.get_mut(range),
-            bytes,
-            tables::read_reference_slope,
-        ),
-    };
-    if !stored {
-        // Capacity was checked at ConfigBegin; never here.
-        return Err(DeviceError::ChunkPastEnd {
-            table,
-            end: saturate(end),
-            len: saturate(table_len),
-        });
-    }
-    upload.digest.update(bytes);
-    upload.next = if end == table_len {
-        upload
-            .header
-            .next_table(table.position() + 1)
-            .map(|table| TablePosition { table, offset: 0 })
-    } else {
-        Some(TablePosition {
-            table,
-            offset: end as u32,
-        })
-    };
-    Ok(Ack::ChunkStored {
-        upload_id: upload.id,
-        table,
-        end: end as u32,
-    })
-}
-
-fn fill<E>(target: Option<&mut [E]>, bytes: &[u8], read: impl Fn(&[u8]) -> E) -> bool {
-    let Some(target) = target else {
-        return false;
-    };
-    let size = bytes.len() / target.len().max(1);
-    for (t, b) in target.iter_mut().zip(bytes.chunks_exact(size.max(1))) {
-        *t = read(b);
-    }
-    true
 }
 
 /// Collects the engine's results into the queue.

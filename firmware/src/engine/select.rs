@@ -38,7 +38,7 @@
 //!   nothing can be dropped the window is marked for a rescan;
 //! - `low` was too high, so at the window's end the candidates do not reach
 //!   the cutoff: the window is *rescanned* from the engine's row history,
-//!   every pixel this time (see `stream.rs`).
+//!   every pixel this time (see `stream/finish.rs`).
 
 use super::centroid::Moments;
 use brightpix_protocol::SelectionRule;

@@ -59,7 +59,7 @@ pub struct OpenWindow {
     pub(crate) lanes: u32,
     /// The calibrated value a pixel needs to become a candidate
     /// ([`OpenWindow::admission`] of `low`, `hint` and `strict`), kept with
-    /// `floor` and `lanes` by `stream::update_admission` whenever one of
+    /// `floor` and `lanes` by `stream::admission::update_admission` whenever one of
     /// them changes.
     pub(crate) admit: i32,
     /// `-(y << 6) - x` (wrapping): a pixel's packed position is this plus
@@ -73,7 +73,7 @@ pub struct OpenWindow {
     /// the buffer's end).
     pub(crate) back_start: usize,
     /// When a segment leaves `front_end` at or past this address, the row
-    /// kernel stops at the window (see `stream::next_attention`).
+    /// kernel stops at the window (see `stream::admission::attention`).
     pub(crate) attention: usize,
     /// Bytes of room a segment can take (`8 width`): when less is left
     /// after a segment, the kernel stops at the window.
@@ -97,7 +97,7 @@ pub struct OpenWindow {
     /// Front entries equal to the hint (the rest are above it).
     pub(crate) at_hint: u16,
     /// Front entries whose ties with the hint `at_hint` counts (the rest
-    /// are counted when needed, see `stream::settle_at_hint`).
+    /// are counted when needed, see `stream::admission::settle_at_hint`).
     pub(crate) counted: u16,
     pub(crate) hint_ties: Ties,
     /// The admission threshold (`<= hint`).

@@ -1,0 +1,213 @@
+//! The row kernel's self-test: the assembly (`dsp`) against its portable
+//! twin on random rows, run by the QEMU benchmark before it times anything.
+
+use super::{row, row_portable, RowScan, RowStop};
+use crate::engine::select::Entry;
+use crate::engine::window::OpenWindow;
+
+/// What [`check_row_kernel`] found different.
+#[derive(Clone, Copy, Debug)]
+pub struct KernelMismatch {
+    pub what: &'static str,
+    /// The round it happened in.
+    pub round: usize,
+    /// Where: a window, or a detail of the difference.
+    pub window: usize,
+    /// The kernel's and the twin's candidates that differ.
+    pub entries: [Entry; 2],
+}
+
+/// The row kernel ([`row`]) against its twin ([`row_portable`]) on random
+/// rows, windows, thresholds, maps, fill levels and bit depths: the same
+/// stops, out-of-range pixels, candidates (values, positions, order) and
+/// tier ends. On Cortex-M this compares the assembly with its definition
+/// (the QEMU benchmark runs it before timing anything); elsewhere both are
+/// the twin. `Err` says what differed, in which round.
+pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> {
+    use crate::engine::calibrate::With;
+    const PIXELS: usize = 224;
+    #[repr(C, align(4))]
+    struct Pixels([u16; PIXELS]);
+    let mut state = seed | 1;
+    let mut next = move |below: u32| {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        ((state >> 16) as u32) % below.max(1)
+    };
+    let mut pixels = Pixels([0; PIXELS]);
+    let mut background = [0i32; PIXELS];
+    // Each window gets `SHARE` entries, more than its widest segment.
+    const SHARE: usize = 40;
+    let mut buffers = [[Entry::ZERO; 7 * SHARE]; 2];
+    for round in 0..rounds {
+        let top = 1 + next(5) * 13_000 + next(300);
+        let max_raw: u16 = [255, 4_095, u16::MAX][round % 3];
+        let check = max_raw != u16::MAX;
+        for r in pixels.0.iter_mut() {
+            *r = next(top).min(max_raw as u32) as u16;
+            if check && next(400) == 0 {
+                *r = max_raw + 1 + next(50) as u16;
+            }
+        }
+        for b in background.iter_mut() {
+            *b = next(16 * top) as i32 - (16 * top / 3) as i32;
+        }
+        let with_background = round % 4 != 3;
+        // Up to seven windows from the row's start, even columns and widths,
+        // with gaps; both copies share the layout, each its own buffers.
+        let mut windows = [[OpenWindow::CLOSED; 7]; 2];
+        let count = 1 + next(7) as usize;
+        let mut x = 2 * next(3) as u16;
+        let mut made = 0;
+        for k in 0..count {
+            let width = 2 + 2 * next(16) as u16;
+            if (x + width) as usize > PIXELS {
+                break;
+            }
+            let floor = next(top + 2);
+            let admit = next(16 * top) as i32 - (16 * top / 4) as i32;
+            let hint = admit + next(16 * top / 2 + 1) as i32;
+            let lanes = if floor == 0 || next(9) == 0 {
+                u32::MAX
+            } else {
+                (floor - 1).min(65_534) * 0x0001_0001
+            };
+            for copies in windows.iter_mut() {
+                let w = &mut copies[k];
+                *w = OpenWindow::CLOSED;
+                w.segment_start = 2 * x as u32;
+                w.segment_end = 2 * (x + width) as u32;
+                w.lanes = lanes;
+                w.admit = admit;
+                w.hint = hint;
+                w.position_base = (k as u32) << 6;
+                w.room = 8 * width as u32;
+                made = k + 1;
+            }
+            x += width + 2 * next(2) as u16;
+        }
+        if made == 0 {
+            continue;
+        }
+        // Buffers: partly filled, the room never below a segment.
+        let share = SHARE;
+        for k in 0..made {
+            let front = next(4) as usize;
+            let back = next(4) as usize;
+            let attention = next(share as u32 + 2) as usize;
+            for (copies, buffer) in windows.iter_mut().zip(buffers.iter_mut()) {
+                let w = &mut copies[k];
+                let start =
+                    buffer.as_mut_ptr() as usize + k * share * core::mem::size_of::<Entry>();
+                let width = (w.segment_end - w.segment_start) as usize / 2;
+                w.buffer = start;
+                w.capacity = share as u16;
+                let keep = share.saturating_sub(width);
+                w.set_front(front.min(keep));
+                w.set_back(back.min(keep - front.min(keep)));
+                w.attention = start + attention * core::mem::size_of::<Entry>();
+            }
+        }
+        for buffer in buffers.iter_mut() {
+            buffer.fill(Entry::ZERO);
+        }
+        let run = |windows: &mut [OpenWindow], twin: bool| {
+            let map = with_background.then_some(&background[..]);
+            let mut args = RowScan::new(&pixels.0, 0, map, None, None, windows, max_raw);
+            let mut stops = [RowStop::Done; 8];
+            let mut n = 0;
+            loop {
+                // SAFETY: arguments from live slices; every window's segment
+                // is inside the row, word-aligned, with room for it.
+                let stop = unsafe {
+                    match (with_background, check, twin) {
+                        (true, false, false) => row::<With<true, false, false>, false>(&mut args),
+                        (true, true, false) => row::<With<true, false, false>, true>(&mut args),
+                        (false, false, false) => row::<With<false, false, false>, false>(&mut args),
+                        (false, true, false) => row::<With<false, false, false>, true>(&mut args),
+                        (true, false, true) => {
+                            row_portable::<With<true, false, false>, false>(&mut args)
+                        }
+                        (true, true, true) => {
+                            row_portable::<With<true, false, false>, true>(&mut args)
+                        }
+                        (false, false, true) => {
+                            row_portable::<With<false, false, false>, false>(&mut args)
+                        }
+                        (false, true, true) => {
+                            row_portable::<With<false, false, false>, true>(&mut args)
+                        }
+                    }
+                };
+                let first = windows.as_ptr() as usize;
+                let relative = match stop {
+                    RowStop::Done => RowStop::Done,
+                    RowStop::Attention(w) => RowStop::Attention(w - first),
+                    RowStop::OutOfRange { window, pixel } => RowStop::OutOfRange {
+                        window: window - first,
+                        pixel: pixel - pixels.0.as_ptr() as usize,
+                    },
+                };
+                stops[n] = relative;
+                n += 1;
+                match stop {
+                    RowStop::Attention(w) if n < stops.len() => {
+                        args.first = w + core::mem::size_of::<OpenWindow>();
+                    }
+                    _ => return (stops, n),
+                }
+            }
+        };
+        let (a, b) = windows.split_at_mut(1);
+        let (kernel, twin) = (&mut a[0][..made], &mut b[0][..made]);
+        let (stops_kernel, n_kernel) = run(kernel, false);
+        let (stops_twin, n_twin) = run(twin, true);
+        if stops_kernel[..n_kernel] != stops_twin[..n_twin] {
+            return Err(KernelMismatch {
+                what: "the row kernel stopped elsewhere than its twin",
+                round,
+                window: n_kernel,
+                entries: [Entry::ZERO; 2],
+            });
+        }
+        if matches!(stops_kernel[n_kernel - 1], RowStop::OutOfRange { .. }) {
+            continue;
+        }
+        for (k, t) in kernel.iter().zip(twin.iter()) {
+            let (kb, tb) = (
+                k.buffer - buffers[0].as_ptr() as usize,
+                t.buffer - buffers[1].as_ptr() as usize,
+            );
+            if kb != tb || k.front() != t.front() || k.back() != t.back() {
+                return Err(KernelMismatch {
+                    what: "the row kernel's tiers differ from its twin's",
+                    round,
+                    window: (k.front() << 16) | t.front(),
+                    entries: [Entry::ZERO; 2],
+                });
+            }
+        }
+        // The tiers' contents (the twin also writes into the free space).
+        let in_tiers = |i: usize| {
+            let k = i / share;
+            if k >= made {
+                return false;
+            }
+            let (front, back) = (kernel[k].front(), kernel[k].back());
+            let at = i % share;
+            at < front || at >= share - back
+        };
+        if let Some(at) =
+            (0..buffers[0].len()).find(|&i| in_tiers(i) && buffers[0][i] != buffers[1][i])
+        {
+            return Err(KernelMismatch {
+                what: "the row kernel's candidates differ from its twin's",
+                round,
+                window: at,
+                entries: [buffers[0][at], buffers[1][at]],
+            });
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,261 @@
+//! The row kernel in assembly. Registers while a window is scanned:
+//! r0 test and temporary, r1 r2 the word pair, r3 a pixel's value, r4
+//! temporary (background, position), r5 the pixel pointer, r6 the
+//! segment's end, r7 the lanes, r8 `admit`, r9 the window's position
+//! constant, r10 `front_end`, r11 `back_start`, r12 `bg_delta`, lr the
+//! window. On the stack: the row, the windows' end, `position_delta`,
+//! `max_raw`, the arguments.
+//!
+//! A segment is scanned by the *cold* loop until some pixel passes the
+//! lanes; the pixel handlers return into the *hot* copy of the loop,
+//! whose exit stores the tiers' ends and checks room and attention (a
+//! cold segment touches none of it).
+
+use super::RowScan;
+use crate::engine::window::OpenWindow;
+use core::mem::offset_of;
+
+/// The range check of the pixel in r3 when `$check`: out to `$out`.
+macro_rules! check {
+    (true, $out:literal) => {
+        concat!("ldr r4, [sp, #12]\n", "cmp r3, r4\n", "bhi ", $out, "\n")
+    };
+    (false, $out:literal) => {
+        ""
+    };
+}
+
+/// r3 = the calibrated value of the raw pixel in r3, whose background
+/// is at `bg_delta + 2 p + $offset`.
+macro_rules! calibrate {
+    (true, 0) => {
+        concat!("ldr.w r4, [r12, r5, lsl #1]\n", "rsb r3, r4, r3, lsl #4\n")
+    };
+    (true, $offset:literal) => {
+        concat!(
+            "add r4, r12, r5, lsl #1\n",
+            "ldr r4, [r4, #",
+            stringify!($offset),
+            "]\n",
+            "rsb r3, r4, r3, lsl #4\n"
+        )
+    };
+    (false, $offset:literal) => {
+        "lsl r3, r3, #4\n"
+    };
+}
+
+/// r4 = the packed position of the lane `$lane` (0-3) of the pair.
+macro_rules! position {
+    (0) => {
+        "add r4, r9, r5, lsr #1\n"
+    };
+    ($lane:literal) => {
+        concat!(
+            "add r4, r9, r5, lsr #1\n",
+            "add r4, r4, #",
+            stringify!($lane),
+            "\n"
+        )
+    };
+}
+
+/// The value in r3 (calibrated) admitted if `>= admit`, to its tier;
+/// else on to `$skip`.
+macro_rules! admit {
+    ($lane:tt, $skip:literal) => {
+        concat!(
+            "cmp r3, r8\n",
+            "blt ",
+            $skip,
+            "\n",
+            "ldr r4, [lr, #{hint}]\n",
+            "cmp r3, r4\n",
+            position!($lane),
+            "ite ge\n",
+            "strdge r3, r4, [r10], #8\n",
+            "strdlt r3, r4, [r11, #-8]!\n",
+        )
+    };
+}
+
+macro_rules! kernel {
+    ($name:ident, $bg:tt, $check:tt) => {
+        #[unsafe(naked)]
+        pub unsafe extern "C" fn $name(args: &mut RowScan) -> usize {
+            core::arch::naked_asm!(
+                "push {{r4-r11, lr}}",
+                "sub sp, #20",
+                "ldr r1, [r0, #{a_row}]",
+                "str r1, [sp, #0]",
+                "ldr r1, [r0, #{a_end}]",
+                "str r1, [sp, #4]",
+                "ldr r1, [r0, #{a_position}]",
+                "str r1, [sp, #8]",
+                "ldr r1, [r0, #{a_max_raw}]",
+                "str r1, [sp, #12]",
+                "str r0, [sp, #16]",
+                "ldr lr, [r0, #{a_first}]",
+                "ldr r12, [r0, #{a_bg}]",
+                "ldr r0, [sp, #4]",
+                "cmp lr, r0",
+                "beq 80f",
+                // A window: its segment (empty: the next window), lanes,
+                // admission, position constant and tiers.
+                "2:",
+                "ldm lr, {{r5, r6, r7, r8, r9}}",
+                "subs r0, r6, r5",
+                "beq 1f",
+                "ldrd r10, r11, [lr, #{front_end}]",
+                "ldr r3, [sp, #0]",
+                "add r5, r5, r3",
+                "add r6, r6, r3",
+                "ldr r3, [sp, #8]",
+                "add r9, r9, r3",
+                "tst r0, #4",
+                "bne 9f",
+                // The cold loop.
+                "3:",
+                "ldrd r1, r2, [r5], #8",
+                "uqsub16 r0, r1, r7",
+                "cbnz r0, 31f",
+                "4:",
+                "uqsub16 r0, r2, r7",
+                "cbnz r0, 32f",
+                "cmp r5, r6",
+                "bne 3b",
+                // The next window.
+                "1:",
+                "add lr, lr, #{size}",
+                "ldr r0, [sp, #4]",
+                "cmp lr, r0",
+                "bne 2b",
+                "80:",
+                "movs r0, #0",
+                "81:",
+                "add sp, #20",
+                "pop {{r4-r11, pc}}",
+                // A segment of an odd number of words: its first word
+                // as a pair's second.
+                "9:",
+                "ldr r2, [r5], #4",
+                "b 4b",
+                "31:",
+                "b 6f",
+                "32:",
+                "b 5f",
+                // The hot loop (its exit after the handlers): the
+                // second word's handler comes first, so that both
+                // `cbnz` reach theirs.
+                "13:",
+                "ldrd r1, r2, [r5], #8",
+                "uqsub16 r0, r1, r7",
+                "cbnz r0, 6f",
+                "14:",
+                "uqsub16 r0, r2, r7",
+                "cbnz r0, 5f",
+                "17:",
+                "cmp r5, r6",
+                "bne 13b",
+                "b 19f",
+                // The second word's pixels (at p - 4, p - 2); its high
+                // pixel after the first word's handler.
+                "5:",
+                "lsls r3, r0, #16",
+                "beq 51f",
+                "uxth r3, r2",
+                check!($check, "92f"),
+                calibrate!($bg, 8),
+                admit!(2, "51f"),
+                "51:",
+                "uqsub16 r0, r2, r7",
+                "cmp r0, #0x10000",
+                "blo 17b",
+                "b 52f",
+                // The first word's pixels (at p - 8, p - 6).
+                "6:",
+                "lsls r3, r0, #16",
+                "beq 61f",
+                "uxth r3, r1",
+                check!($check, "90f"),
+                calibrate!($bg, 0),
+                admit!(0, "61f"),
+                "61:",
+                "uqsub16 r0, r1, r7",
+                "cmp r0, #0x10000",
+                "blo 14b",
+                "lsrs r3, r1, #16",
+                check!($check, "91f"),
+                calibrate!($bg, 4),
+                admit!(1, "14b"),
+                "b 14b",
+                "52:",
+                "lsrs r3, r2, #16",
+                check!($check, "93f"),
+                calibrate!($bg, 12),
+                admit!(3, "17b"),
+                "b 17b",
+                // The hot loop's exit: the tiers' ends stored, room and
+                // attention checked.
+                "19:",
+                "strd r10, r11, [lr, #{front_end}]",
+                "sub r0, r11, r10",
+                "ldr r3, [lr, #{room}]",
+                "cmp r0, r3",
+                "blo 18f",
+                "ldr r0, [lr, #{attention}]",
+                "cmp r10, r0",
+                "blo 1b",
+                "18:",
+                "mov r0, lr",
+                "b 81b",
+                // Out of range: the pixel's address, and the window
+                // tagged.
+                "90:",
+                "sub r3, r5, #8",
+                "b 95f",
+                "91:",
+                "sub r3, r5, #6",
+                "b 95f",
+                "92:",
+                "sub r3, r5, #4",
+                "b 95f",
+                "93:",
+                "sub r3, r5, #2",
+                "95:",
+                "ldr r0, [sp, #16]",
+                "str r3, [r0, #{a_bad}]",
+                "orr r0, lr, #1",
+                "b 81b",
+                a_row = const offset_of!(RowScan, row),
+                a_first = const offset_of!(RowScan, first),
+                a_end = const offset_of!(RowScan, end),
+                a_bg = const offset_of!(RowScan, bg_delta),
+                a_position = const offset_of!(RowScan, position_delta),
+                a_max_raw = const offset_of!(RowScan, max_raw),
+                a_bad = const offset_of!(RowScan, bad),
+                front_end = const offset_of!(OpenWindow, front_end),
+                hint = const offset_of!(OpenWindow, hint),
+                attention = const offset_of!(OpenWindow, attention),
+                room = const offset_of!(OpenWindow, room),
+                size = const core::mem::size_of::<OpenWindow>(),
+            )
+        }
+    };
+}
+
+// The `ldm` above loads these five fields in this order.
+const _: () = {
+    assert!(offset_of!(OpenWindow, segment_start) == 0);
+    assert!(offset_of!(OpenWindow, segment_end) == 4);
+    assert!(offset_of!(OpenWindow, lanes) == 8);
+    assert!(offset_of!(OpenWindow, admit) == 12);
+    assert!(offset_of!(OpenWindow, position_base) == 16);
+    assert!(offset_of!(OpenWindow, back_start) == offset_of!(OpenWindow, front_end) + 4);
+    assert!(core::mem::size_of::<OpenWindow>() < 4096);
+};
+
+kernel!(row_background, true, false);
+kernel!(row_background_checked, true, true);
+kernel!(row_plain, false, false);
+kernel!(row_plain_checked, false, true);

@@ -1,0 +1,359 @@
+//! The hot loop: the pixels of a window's row segment admitted into its
+//! candidate buffer (see `select.rs` for the tiers).
+//!
+//! Pixels are read two at a time as a word; one `UQSUB16` against the
+//! window's raw floor in both lanes tells whether either can reach the
+//! admission threshold (`prefilter.rs`), and only those are calibrated.
+//! An admitted pixel goes to the front of the buffer if it is at or above
+//! the window's hint, else to the back.
+//!
+//! Two forms:
+//! - [`row`], the **row kernel**: every open window's segment of one camera
+//!   row, in one call. On Cortex-M, for a background map or no map, it is
+//!   one assembly routine (`dsp`) that keeps a window's whole scan state in
+//!   registers: a word pair whose four pixels all fail costs seven
+//!   instructions, a window with none passing about twenty besides its
+//!   pairs. [`row_portable`] is its twin: the definition, what hosts and
+//!   the other calibrations run, and what the QEMU benchmark's self-test
+//!   compares the assembly with. The kernel reads and writes the head of
+//!   each [`OpenWindow`] (the fields before `buffer`); it stops at a window
+//!   that needs the engine's attention (its front reached
+//!   `OpenWindow::attention`, or less room is left than a segment takes)
+//!   and at a pixel above the bit depth.
+//! - [`scan`], the **general path**: one window's pixels, with the room
+//!   checked before every store, for what the kernel leaves (a chunk that
+//!   ends inside a window, a window short of room, odd columns).
+
+use super::calibrate::{self, Steps};
+use super::prefilter;
+use super::select::Entry;
+use super::window::OpenWindow;
+
+/// What the row kernel needs for one camera row (read by the assembly at
+/// these offsets).
+#[repr(C)]
+pub struct RowScan {
+    /// Address of the row's first pixel (column 0), word-aligned.
+    pub row: usize,
+    /// The windows to scan, `first .. end` (addresses of `OpenWindow`s,
+    /// consecutive).
+    pub first: usize,
+    pub end: usize,
+    /// `bg_row - 2 row - 16` (wrapping), `bg_row` the address of the row's
+    /// first background value (any value without a background map): the
+    /// background of the low pixel of a word pair read at `p - 8` is at
+    /// `bg_delta + 2 p`.
+    pub bg_delta: usize,
+    /// `(row index << 6) - 4 - row / 2` (wrapping): a packed position is
+    /// `position_base + position_delta + p / 2`, for that low pixel.
+    pub position_delta: u32,
+    /// The largest raw value (with `CHECK`).
+    pub max_raw: u32,
+    /// Written on a pixel out of range: its address.
+    pub bad: usize,
+    /// For [`row_portable`] only: the row's gain values (from the row's
+    /// first pixel; 0 without a map) and the fixed threshold (`i32::MIN`
+    /// without one).
+    pub gain_row: usize,
+    pub threshold: i32,
+}
+
+impl RowScan {
+    /// The arguments for the row `row_index` at `row` (word-aligned) with
+    /// `background` and `gain` (the maps' values from the row's first
+    /// pixel, if any) and the fixed `threshold`, over the open windows
+    /// `windows`.
+    pub fn new(
+        row: &[u16],
+        row_index: u16,
+        background: Option<&[i32]>,
+        gain: Option<&[u16]>,
+        threshold: Option<i32>,
+        windows: &mut [OpenWindow],
+        max_raw: u16,
+    ) -> RowScan {
+        let row_address = row.as_ptr() as usize;
+        let bg_row = background.map_or(0, |b| b.as_ptr() as usize);
+        let range = windows.as_mut_ptr_range();
+        RowScan {
+            row: row_address,
+            first: range.start as usize,
+            end: range.end as usize,
+            bg_delta: bg_row.wrapping_sub(2 * row_address).wrapping_sub(16),
+            position_delta: ((row_index as u32) << 6)
+                .wrapping_sub(4)
+                .wrapping_sub((row_address >> 1) as u32),
+            max_raw: max_raw as u32,
+            bad: 0,
+            gain_row: gain.map_or(0, |g| g.as_ptr() as usize),
+            threshold: threshold.unwrap_or(i32::MIN),
+        }
+    }
+}
+
+/// Why the row kernel returned.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RowStop {
+    /// Every window's segment is done.
+    Done,
+    /// The window at this address needs the engine (its segment is done):
+    /// the kernel goes on from the next one when called again.
+    Attention(usize),
+    /// The pixel at this address, in the segment of the window at that
+    /// one, is above `max_raw`; the row is abandoned.
+    OutOfRange { window: usize, pixel: usize },
+}
+
+/// The row kernel: each window's segment of the row (its
+/// `segment_start .. segment_end`, bytes from the row's first pixel; empty
+/// ones are skipped), from `args.first` on: pixels `r` with `r > lanes`
+/// (as a 16-bit lane) checked against `max_raw` (`CHECK`), calibrated,
+/// and admitted if `p >= admit`, to the front (stored at `front_end`,
+/// which grows) if `p >= hint`, else to the back (stored below
+/// `back_start`, which falls), in order of column. After a segment in
+/// which some pixel passed the lanes, it stops at the window if
+/// `back_start - front_end < room` or `front_end >= attention`.
+///
+/// # Safety
+/// `args` as [`RowScan::new`] makes them from live slices: the row holds
+/// every window's segment, the background map (`S::BACKGROUND`) covers the
+/// row, every window with a non-empty segment is word-aligned there and
+/// its buffer has `room` bytes between its tiers.
+#[inline(always)]
+pub unsafe fn row<S: Steps, const CHECK: bool>(args: &mut RowScan) -> RowStop {
+    #[cfg(target_arch = "arm")]
+    if !S::GAIN && !S::THRESHOLD {
+        // SAFETY: the caller's contract; the routine's register use and
+        // offsets are its own (see `dsp`).
+        let stop = unsafe {
+            match (S::BACKGROUND, CHECK) {
+                (true, false) => dsp::row_background(args),
+                (true, true) => dsp::row_background_checked(args),
+                (false, false) => dsp::row_plain(args),
+                (false, true) => dsp::row_plain_checked(args),
+            }
+        };
+        return match stop {
+            0 => RowStop::Done,
+            w if w & 1 == 0 => RowStop::Attention(w),
+            w => RowStop::OutOfRange {
+                window: w & !1,
+                pixel: args.bad,
+            },
+        };
+    }
+    // SAFETY: the caller's contract.
+    unsafe { row_portable::<S, CHECK>(args) }
+}
+
+/// The definition of [`row`], and its form on hosts and for gain maps and
+/// fixed thresholds.
+///
+/// # Safety
+/// As [`row`].
+pub unsafe fn row_portable<S: Steps, const CHECK: bool>(args: &mut RowScan) -> RowStop {
+    let mut at = args.first;
+    while at != args.end {
+        // SAFETY: `first .. end` are consecutive live open windows (the
+        // caller's contract).
+        let window = unsafe { &mut *(at as *mut OpenWindow) };
+        let (start, end) = (window.segment_start as usize, window.segment_end as usize);
+        if start != end {
+            let pixels = (end - start) / 2;
+            // SAFETY: the row holds the segment (the caller's contract).
+            let raw =
+                unsafe { core::slice::from_raw_parts((args.row + start) as *const u16, pixels) };
+            let column = start / 2;
+            let background = if S::BACKGROUND {
+                // SAFETY: the map covers the row: `bg_delta` was made from
+                // its first value's address.
+                let bg_row = args.bg_delta.wrapping_add(2 * args.row).wrapping_add(16);
+                unsafe { core::slice::from_raw_parts((bg_row as *const i32).add(column), pixels) }
+            } else {
+                &[][..]
+            };
+            let gain = if S::GAIN {
+                // SAFETY: as the background.
+                unsafe {
+                    core::slice::from_raw_parts((args.gain_row as *const u16).add(column), pixels)
+                }
+            } else {
+                &[][..]
+            };
+            let position = window.position_base.wrapping_add(
+                args.position_delta
+                    .wrapping_add(4)
+                    .wrapping_add((args.row >> 1) as u32)
+                    .wrapping_add(column as u32),
+            );
+            let mask = hot_pixels(raw, window.lanes);
+            let passed = mask != 0;
+            let (mut front_end, mut back_start) = (window.front_end, window.back_start);
+            let (admit, hint) = (window.admit, window.hint);
+            let mut bits = mask;
+            while bits != 0 {
+                let i = bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                let r = raw[i];
+                if CHECK && r as u32 > args.max_raw {
+                    args.bad = raw.as_ptr() as usize + 2 * i;
+                    return RowStop::OutOfRange {
+                        window: at,
+                        pixel: args.bad,
+                    };
+                }
+                // SAFETY: i < pixels, within the segment's maps (or no map).
+                let p = unsafe {
+                    calibrate::value_in_run_unchecked::<S>(r, i, background, gain, args.threshold)
+                };
+                let entry = Entry {
+                    value: p,
+                    position: position.wrapping_add(i as u32),
+                };
+                // Without a branch (they mispredict on hosts): written at
+                // both free ends, kept by moving the end of its tier. The
+                // buffer has room for the segment (the caller's contract)
+                // and each pixel stores once, so both writes are in the
+                // free space, and where they meet they are one.
+                let admitted = p >= admit;
+                let upper = p >= hint;
+                const ENTRY: usize = core::mem::size_of::<Entry>();
+                // SAFETY: see above.
+                unsafe {
+                    (front_end as *mut Entry).write(entry);
+                    ((back_start - ENTRY) as *mut Entry).write(entry);
+                }
+                front_end += ENTRY * (admitted & upper) as usize;
+                back_start -= ENTRY * (admitted & !upper) as usize;
+            }
+            window.front_end = front_end;
+            window.back_start = back_start;
+            if passed
+                && (window.back_start - window.front_end < window.room as usize
+                    || window.front_end >= window.attention)
+            {
+                return RowStop::Attention(at);
+            }
+        }
+        at += core::mem::size_of::<OpenWindow>();
+    }
+    RowStop::Done
+}
+
+/// The pixels of `raw` (at most 64) above `lanes`' low half, as a bit
+/// mask. On x86-64 eight at a time (`prefilter::mask_at_least`); on
+/// Cortex-M (where this is the twin and the gain path) two at a time by
+/// `UQSUB16`.
+#[inline(always)]
+fn hot_pixels(raw: &[u16], lanes: u32) -> u64 {
+    let below = lanes as u16;
+    if below == u16::MAX {
+        return 0;
+    }
+    #[cfg(not(target_arch = "arm"))]
+    {
+        prefilter::mask_at_least(raw, below + 1)
+    }
+    #[cfg(target_arch = "arm")]
+    {
+        let mut mask = 0u64;
+        for (w, pair) in raw.chunks(2).enumerate() {
+            let word = pair[0] as u32 | (pair.get(1).copied().unwrap_or(0) as u32) << 16;
+            let passing = prefilter::uqsub16(word, lanes);
+            if passing != 0 {
+                mask |= ((passing & 0xffff != 0) as u64) << (2 * w);
+                mask |= ((passing >> 16 != 0 && pair.len() == 2) as u64) << (2 * w + 1);
+            }
+        }
+        mask
+    }
+}
+
+/// Why [`scan`] stopped before the end of its run.
+pub(super) enum Stop {
+    End,
+    /// The pixel at this offset of the segment is above the bit depth.
+    OutOfRange(usize),
+    /// The buffer is full; the pixel at offset `k` is still to be placed.
+    Full {
+        k: usize,
+        entry: Entry,
+    },
+}
+
+/// One window's run of pixels to scan, with what calibrating them takes.
+pub(super) struct Segment<'a> {
+    /// Pixels `start ..` of the segment.
+    pub(super) raw: &'a [u16],
+    pub(super) start: usize,
+    /// The whole segment's maps, as `calibrate::run_maps` gives them.
+    pub(super) background: &'a [i32],
+    pub(super) gain: &'a [u16],
+    pub(super) fixed: i32,
+    /// Packed position of the segment's first pixel.
+    pub(super) base: u16,
+    pub(super) max_raw: u16,
+}
+
+/// The general path: admits the pixels of a segment that reach the
+/// window's raw floor and calibrate to at least its admission threshold,
+/// checking for room before each store. In the scan the tiers are only
+/// two: `p >= hint` goes to the front, below it to the back (pixels equal
+/// to the hint or to `low` stay individual entries; only a compaction
+/// gathers them into tie buckets, see `select.rs`).
+#[inline(always)]
+pub(super) fn scan<S: Steps, const CHECK: bool>(
+    window: &mut OpenWindow,
+    segment: &Segment<'_>,
+) -> Stop {
+    let Segment {
+        raw,
+        start,
+        background,
+        gain,
+        fixed,
+        base,
+        max_raw,
+    } = *segment;
+    // The maps cover the whole segment; the scan reads offsets `start ..`.
+    let end = start + raw.len();
+    assert!((!S::BACKGROUND || background.len() >= end) && (!S::GAIN || gain.len() >= end));
+    let (floor, admit, hint) = (window.floor, window.admit, window.hint);
+    for (k, &r) in (start..).zip(raw) {
+        if (r as u32) < floor {
+            continue;
+        }
+        if CHECK && r > max_raw {
+            return Stop::OutOfRange(k);
+        }
+        let p = calibrate::value_in_run::<S>(r, k, background, gain, fixed);
+        if p < admit {
+            continue;
+        }
+        let entry = Entry {
+            value: p,
+            position: (base + k as u16) as u32,
+        };
+        if window.front_end == window.back_start {
+            return Stop::Full { k, entry };
+        }
+        // SAFETY: room for one entry between the tiers (checked), within
+        // the window's buffer.
+        unsafe {
+            if p >= hint {
+                (window.front_end as *mut Entry).write(entry);
+                window.front_end += core::mem::size_of::<Entry>();
+            } else {
+                window.back_start -= core::mem::size_of::<Entry>();
+                (window.back_start as *mut Entry).write(entry);
+            }
+        }
+    }
+    Stop::End
+}
+
+mod check;
+#[cfg(target_arch = "arm")]
+mod dsp;
+
+pub use check::{check_row_kernel, KernelMismatch};

@@ -1,0 +1,204 @@
+//! What an open window admits as it fills: the admission threshold and its
+//! raw pre-filter floor, when the row kernel must stop at the window
+//! (`attention`), raising admission to the hint once the front proves the
+//! cutoff at or above it, and making room in a full candidate buffer.
+
+use super::Engine;
+use crate::engine::calibrate::raw_floor;
+use crate::engine::select::{Buffer, Entry, Tiers, Ties, WindowRule};
+use crate::engine::window::OpenWindow;
+use brightpix_protocol::{Calibration, Config, SelectionRule};
+
+impl Engine<'_, '_> {
+    /// The row kernel stopped at window `k`: its candidates may now prove
+    /// the cutoff is at or above the hint (the back tier then goes, and
+    /// admission rises), or it is short of room for the next segment (it
+    /// then takes the general path, which compacts it when full).
+    #[inline(never)]
+    pub(super) fn attend(&mut self, k: usize) {
+        self.stats.attentions = self.stats.attentions.wrapping_add(1);
+        let window = &mut self.memory.open[k];
+        raise_to_hint(window, &self.config, self.max_raw);
+        window.attention = attention(window, self.config.selection.rule);
+        self.refresh_ready(k);
+    }
+
+    /// Whether window `k` is `kernel_ready` may have changed: its kernel
+    /// segment and the count of windows the kernel skips, updated.
+    #[inline(always)]
+    pub(super) fn refresh_ready(&mut self, k: usize) {
+        let window = &mut self.memory.open[k];
+        let was = window.segment_start != window.segment_end;
+        let ready = window.update_kernel_segment();
+        if was != ready {
+            if ready {
+                self.not_ready -= 1;
+            } else {
+                self.not_ready += 1;
+            }
+        }
+    }
+}
+
+/// Counts the front entries equal to the hint that arrived since the last
+/// count: `at_hint` is kept lazily, since only the tests of whether the front
+/// covers the hint, compaction and the window's end need it.
+#[inline(always)]
+pub(super) fn settle_at_hint(window: &mut OpenWindow) {
+    let (counted, front) = (window.counted as usize, window.front());
+    // SAFETY: the window's live buffer, no other reference to it.
+    let entries = unsafe { window.entries() };
+    window.at_hint += count_at_hint(&entries[counted..front], window.hint);
+    window.counted = front as u16;
+}
+
+/// Front entries equal to the hint.
+#[inline(always)]
+fn count_at_hint(entries: &[Entry], hint: i32) -> u16 {
+    entries.iter().filter(|e| e.value == hint).count() as u16
+}
+
+/// Once the front and hint ties prove the cutoff is at or above the hint,
+/// nothing below it can matter, and often no more pixels equal to it: the
+/// rest of the window is filtered harder.
+#[inline(always)]
+pub(super) fn raise_to_hint(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) {
+    if !window.strict
+        && window.front() + window.hint_ties.count as usize >= window.n as usize
+        && covers(window, config)
+    {
+        window.set_back(0);
+        window.low = window.hint;
+        window.low_ties = Ties::NONE;
+        window.strict = Tiers::hint_ties_settled(
+            config.selection.rule,
+            window.n,
+            window.front() as u16 - window.at_hint,
+        );
+        update_admission(window, &config.calibration, max_raw);
+    }
+}
+
+/// Where the row kernel next stops at a window for [`raise_to_hint`]: the
+/// front's end at the fewest candidates with which the front and hint ties
+/// could prove the cutoff at or above the hint (or, once they have, make
+/// admission strict), and at least one more than it holds; never once
+/// admission is strict.
+#[inline(always)]
+pub(super) fn attention(window: &OpenWindow, rule: SelectionRule) -> usize {
+    if window.capacity == 0 || window.strict {
+        return usize::MAX;
+    }
+    let (n, ties, front) = (
+        window.n as usize,
+        window.hint_ties.count as usize,
+        window.front(),
+    );
+    let raised = window.low == window.hint && window.back() == 0;
+    let fewest = match rule {
+        // front + ties > n (Tiers::covers_hint); always strict once raised.
+        SelectionRule::SubtractNext => (n + 1).saturating_sub(ties),
+        // front + ties >= n, then strict at front - at_hint >= n.
+        SelectionRule::Threshold if raised => n + window.at_hint as usize,
+        SelectionRule::Threshold => n.saturating_sub(ties),
+        // Besides n above the hint, copies of it: the count is a bound, the
+        // copies in the front are only counted when it is reached.
+        SelectionRule::SubtractNextDistinct => n + (ties == 0) as usize,
+        SelectionRule::SubtractMean { count } => n + (count as usize).saturating_sub(ties),
+    };
+    window.buffer + fewest.max(front + 1) * core::mem::size_of::<Entry>()
+}
+
+/// After `low`, `hint` or `strict` changed: the window's admission
+/// threshold, and the pre-filter's raw floor for it, lowered so that a pixel
+/// above `max_raw` always passes (see `OpenWindow::floor`), in both forms.
+#[inline(always)]
+pub(super) fn update_admission(
+    window: &mut OpenWindow,
+    calibration: &Calibration<'_>,
+    max_raw: u16,
+) {
+    window.admit = window.admission();
+    let floor = raw_floor(calibration, window.bounds, window.admit).min(max_raw as u32 + 1);
+    window.floor = floor;
+    window.lanes = floor.wrapping_sub(1).wrapping_mul(0x0001_0001);
+}
+
+/// [`Tiers::covers_hint`] for an open window: its front holds the pixels
+/// above the hint and `at_hint` equal to it, beside its hint ties.
+#[inline(always)]
+fn covers(window: &mut OpenWindow, config: &Config<'_>) -> bool {
+    settle_at_hint(window);
+    Tiers::covers_hint(
+        config.selection.rule,
+        window.n,
+        window.front() as u16 - window.at_hint,
+        window.hint_ties.count + window.at_hint,
+    )
+}
+
+/// A window's candidate buffer is full: drops its back tier if the front
+/// proves it useless, else compacts it (`select::Buffer::compact`).
+/// `false` if nothing could be dropped.
+#[cold]
+#[inline(never)]
+pub(super) fn make_room(window: &mut OpenWindow, config: &Config<'_>, scratch: &mut [i32]) -> bool {
+    settle_at_hint(window);
+    let rule = WindowRule {
+        rule: config.selection.rule,
+        n: window.n,
+        pixels: window.pixels(),
+    };
+    if window.back() > 0 && covers(window, config) {
+        window.set_back(0);
+        window.low = window.hint;
+        window.low_ties = Ties::NONE;
+        return true;
+    }
+    let mut buffer = Buffer {
+        // SAFETY: the window's live buffer, no other reference to it.
+        entries: unsafe { window.entries() },
+        front: window.front(),
+        at_hint: window.at_hint,
+        back: window.back(),
+        hint: window.hint,
+        hint_ties: window.hint_ties,
+        low: window.low,
+        low_ties: window.low_ties,
+        strict: window.strict,
+    };
+    if !buffer.compact(&rule, scratch) {
+        return false;
+    }
+    let room = buffer.front + buffer.back < buffer.entries.len();
+    let (front, back) = (buffer.front, buffer.back);
+    window.at_hint = buffer.at_hint;
+    window.hint = buffer.hint;
+    window.hint_ties = buffer.hint_ties;
+    window.low = buffer.low;
+    window.low_ties = buffer.low_ties;
+    window.strict = buffer.strict;
+    window.set_front(front);
+    window.set_back(back);
+    window.counted = front as u16;
+    room
+}
+
+/// Puts an admitted pixel into its tier, after [`make_room`].
+#[cold]
+pub(super) fn place(window: &mut OpenWindow, entry: Entry) {
+    let p = entry.value;
+    if p < window.admit {
+        return;
+    }
+    // SAFETY: `make_room` left room for one entry between the tiers.
+    unsafe {
+        if p >= window.hint {
+            (window.front_end as *mut Entry).write(entry);
+            window.front_end += core::mem::size_of::<Entry>();
+        } else {
+            window.back_start -= core::mem::size_of::<Entry>();
+            (window.back_start as *mut Entry).write(entry);
+        }
+    }
+}

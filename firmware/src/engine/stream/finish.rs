@@ -1,0 +1,151 @@
+//! A window's end: the cutoff among its candidates (or, when the seed was
+//! too high, among all its pixels again from the row history), the level
+//! filter and seed updated, the moments and the sub-aperture's result.
+
+use super::admission::settle_at_hint;
+use super::{Engine, OutputSink};
+use crate::engine::centroid::Moments;
+use crate::engine::select::{self, pack, Cut, Entry, Tiers, WindowRule};
+use crate::engine::window::SubapertureState;
+
+impl Engine<'_, '_> {
+    /// A window's last pixel has arrived: its result, and what it leaves for
+    /// the next frame (level filter, seed).
+    pub(super) fn finish(&mut self, k: usize, sink: &mut impl OutputSink) {
+        self.finished_in_row = true;
+        let memory = &mut self.memory;
+        let window = &mut memory.open[k];
+        window.finished = true;
+        let moments = if window.capacity == 0 {
+            window.moments
+        } else {
+            let rule = WindowRule {
+                rule: self.config.selection.rule,
+                n: window.n,
+                pixels: window.pixels(),
+            };
+            let state = &mut memory.subapertures[window.index as usize];
+            let capacity = window.capacity as usize;
+            settle_at_hint(window);
+            let (front, back) = (window.front(), window.back());
+            // SAFETY: the window's buffer (opened with it), no other
+            // reference to it alive.
+            let entries: &[Entry] = unsafe { window.entries() };
+            let filter = self.config.selection.level_filter;
+            let level = |cut: &Cut, state: &mut SubapertureState| match filter {
+                Some(f) => state.level.update(cut.level, f.gain_shift),
+                None => cut.level,
+            };
+            let held =
+                front + back + window.hint_ties.count as usize + window.low_ties.count as usize;
+            self.stats.windows = self.stats.windows.wrapping_add(1);
+            self.stats.candidates = self.stats.candidates.wrapping_add(held as u32);
+            let mut too_high = false;
+            let from_buffer = if window.rescan {
+                None
+            } else {
+                let mut tiers = Tiers {
+                    front: &entries[..front],
+                    front_at_hint: window.at_hint,
+                    hint: window.hint,
+                    hint_ties: window.hint_ties.count,
+                    back: &entries[capacity - back..],
+                    low: window.low,
+                    low_ties: window.low_ties.count,
+                    complete: held == rule.pixels as usize,
+                    scratch: memory.scratch,
+                };
+                let cut = select::cut(&rule, &mut tiers).ok();
+                too_high = cut.is_none();
+                cut
+            };
+            match from_buffer {
+                Some(cut) => {
+                    let level = level(&cut, state);
+                    state.seed.observe(cut.cutoff, false);
+                    let mut moments = Moments::ZERO;
+                    select::add_moments(&mut moments, &cut, level, &entries[..front]);
+                    select::add_tie_moments(
+                        &mut moments,
+                        &cut,
+                        level,
+                        window.hint,
+                        window.hint_ties,
+                    );
+                    if cut.bound < window.hint {
+                        let at = capacity - back;
+                        select::add_moments(&mut moments, &cut, level, &entries[at..]);
+                        select::add_tie_moments(
+                            &mut moments,
+                            &cut,
+                            level,
+                            window.low,
+                            window.low_ties,
+                        );
+                    }
+                    moments
+                }
+                None => {
+                    self.stats.rescans = self.stats.rescans.wrapping_add(1);
+                    let pixels = rule.pixels as usize;
+                    let all = &mut memory.rescan[..pixels];
+                    let width = self.config.camera.width as usize;
+                    let w = window.width as usize;
+                    for j in 0..window.height as usize {
+                        let y = window.y as usize + j;
+                        let at = (y % self.history_rows) * width + window.x as usize;
+                        let row = &mut self.calibrated[..w];
+                        self.calibrator.calibrate(
+                            &memory.history[at..at + w],
+                            y * width + window.x as usize,
+                            row,
+                        );
+                        for (i, (e, &p)) in all[j * w..(j + 1) * w]
+                            .iter_mut()
+                            .zip(row.iter())
+                            .enumerate()
+                        {
+                            *e = Entry {
+                                value: p,
+                                position: pack(i as u16, j as u16) as u32,
+                            };
+                        }
+                    }
+                    let mut tiers = Tiers {
+                        front: all,
+                        front_at_hint: 0,
+                        hint: i32::MIN,
+                        hint_ties: 0,
+                        back: &[],
+                        low: i32::MIN,
+                        low_ties: 0,
+                        complete: true,
+                        scratch: memory.scratch,
+                    };
+                    // Complete candidates always cut (N < pixels); the
+                    // fallback keeps nothing and is never taken.
+                    let cut = select::cut(&rule, &mut tiers).unwrap_or(KEEPS_NOTHING);
+                    let level = level(&cut, state);
+                    state.seed.observe(cut.cutoff, too_high);
+                    let mut moments = Moments::ZERO;
+                    select::add_moments(&mut moments, &cut, level, all);
+                    moments
+                }
+            }
+        };
+        sink.subaperture(self.centroider.result(
+            window.index,
+            moments,
+            window.width,
+            window.height,
+        ));
+    }
+}
+
+/// Never used: see `Engine::finish`.
+const KEEPS_NOTHING: Cut = Cut {
+    bound: i32::MAX,
+    strict: true,
+    level: None,
+    cutoff: i32::MIN,
+};

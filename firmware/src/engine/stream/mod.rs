@@ -1,0 +1,489 @@
+//! The engine: routes pixels, as they arrive in raster order, to the windows
+//! they belong to, and emits each sub-aperture's result the moment its last
+//! pixel has been seen.
+//!
+//! Windows are opened at their first row (taking a candidate buffer from the
+//! pool) and closed after their last, so only the windows crossing the
+//! current row hold state. The open windows are kept in the engine's memory
+//! in order of first column, and a cursor skips those the current row has
+//! already passed, so a chunk touches only the windows it overlaps,
+//! whatever its length.
+//!
+//! A whole camera row goes to the row kernel (`scan::row`): every open
+//! window's run of pixels in the row (its *segment*) in one call, each pair
+//! of raw pixels tested against the window's raw floor with one
+//! instruction, and the pixels that can reach its admission threshold
+//! calibrated and made candidates (see `select.rs`). The kernel stops at a
+//! window that needs more than that (its candidates now prove the cutoff
+//! is at or above the hint, or it is short of room: [`Engine::attend`]).
+//! What the kernel does not take (a chunk that ends inside a window,
+//! windows without selection or awaiting a rescan, odd columns) takes the
+//! general path, a window at a time. Pixels that belong to no window are
+//! only checked against the camera's bit depth.
+//!
+//! Here: the engine's state, its construction and the per-chunk and
+//! per-row bookkeeping. In order of a window's life:
+//! - `open`: windows opened at their first row;
+//! - `route`: each row's pixels to the open windows (row kernel or general
+//!   path);
+//! - `admission`: what a window admits as it fills (thresholds, the
+//!   kernel's attention stops, room in a full buffer);
+//! - `finish`: a window's end, its cutoff, moments and result.
+
+use super::calibrate::{Calibrator, Steps, WindowBounds, With};
+use super::centroid::{Centroider, SubapertureResult};
+use super::memory::{EngineMemory, MemorySize};
+use super::plan::plan;
+use super::prefilter;
+use super::scan::RowScan;
+use super::window::SubapertureState;
+use brightpix_protocol::{Config, ConfigError, MAX_WINDOW_SIDE};
+
+mod admission;
+mod finish;
+mod open;
+mod route;
+
+/// Where results go.
+pub trait OutputSink {
+    /// A sub-aperture's last pixel has arrived.
+    fn subaperture(&mut self, result: SubapertureResult);
+    /// The frame's last pixel has arrived; `frame` counts completed frames
+    /// since the engine was configured, from 1.
+    fn frame_complete(&mut self, _frame: u32) {}
+}
+
+impl<F: FnMut(SubapertureResult)> OutputSink for F {
+    fn subaperture(&mut self, result: SubapertureResult) {
+        self(result)
+    }
+}
+
+/// A frame that cannot be processed (SPEC.md §8).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum FrameError {
+    /// A raw pixel above `2^bit_depth - 1`. The frame is abandoned.
+    PixelOutOfRange { row: u16, column: u16, value: u16 },
+}
+
+impl core::fmt::Display for FrameError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            FrameError::PixelOutOfRange { row, column, value } => write!(
+                f,
+                "pixel at row {row}, column {column} is {value}, above the camera's bit depth"
+            ),
+        }
+    }
+}
+
+/// How often the engine took its slow paths, since it was built. Speed
+/// only: results do not depend on them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct EngineStats {
+    /// Windows finished with selection.
+    pub windows: u32,
+    /// Candidates those windows held at their end (buffer and ties).
+    pub candidates: u32,
+    /// Candidate buffers that filled and were compacted.
+    pub compactions: u32,
+    /// Windows computed again from the row history.
+    pub rescans: u32,
+    /// Times the row kernel stopped at a window for the engine's
+    /// attention (`Engine::attend`).
+    pub attentions: u32,
+}
+
+/// The streaming brightest-pixel engine for one configuration.
+pub struct Engine<'c, 'm> {
+    config: Config<'c>,
+    calibrator: Calibrator<'c>,
+    centroider: Centroider<'c>,
+    memory: EngineMemory<'m>,
+    /// The address of the candidate pool's first entry: a window's buffer
+    /// is `stride` entries from `pool + number * stride`.
+    pool: usize,
+    /// Candidate entries per open window.
+    stride: usize,
+    /// Rows in the history ring (0: no window selects, none kept).
+    history_rows: usize,
+    /// Where the current row starts in the history ring
+    /// (`(row % history_rows) * width`).
+    history_row: usize,
+    max_raw: u16,
+    row: u16,
+    column: u16,
+    /// Next window (in `memory.order`) to open.
+    next_to_open: usize,
+    /// Open windows: `memory.open[..open_len]`, by first column.
+    open_len: usize,
+    free_len: usize,
+    /// Open windows before this one are done with the current row.
+    cursor: usize,
+    /// Some window's last pixel arrived in the current row.
+    finished_in_row: bool,
+    /// The open windows do not overlap (each ends at or before the next
+    /// one's first column): a whole row can take [`Self::push_whole_row`].
+    disjoint: bool,
+    /// The open windows cover the camera row with no gap: no pixel of a
+    /// row lies outside a window (so the row kernel, which checks only the
+    /// windows' pixels against the bit depth, checks them all).
+    gapless: bool,
+    /// Open windows the row kernel skips (not `kernel_ready`).
+    not_ready: usize,
+    /// The earliest last row of an open window.
+    next_last_row: u16,
+    /// The row kernel's arguments, kept from row to row: the open windows
+    /// (`first .. end`, set with the layout), the maps' addresses for the
+    /// current row (advanced by `end_row`).
+    scan: RowScan,
+    /// The address of the current row's first background value (0 without
+    /// a map), and its packed row (`row << 6`).
+    bg_row: usize,
+    position_row: u32,
+    frames: u32,
+    needed: MemorySize,
+    stats: EngineStats,
+    /// Calibrated values of one segment of a window without selection.
+    calibrated: [i32; MAX_WINDOW_SIDE as usize],
+}
+
+impl<'c, 'm> Engine<'c, 'm> {
+    /// Validates `config` and checks it fits `memory`; resets the level
+    /// filters (SPEC.md §4) and seeds. On error nothing is kept (the
+    /// caller's previous engine, if any, is untouched).
+    pub fn new(config: Config<'c>, memory: EngineMemory<'m>) -> Result<Self, ConfigError> {
+        let mut engine = Self::resume(config, memory)?;
+        engine.reset_level_filters();
+        Ok(engine)
+    }
+
+    /// As [`new`](Self::new), but keeps the level-filter state and seeds
+    /// already in `memory`: for a caller that re-borrows the memory of an
+    /// engine it built earlier with the same configuration.
+    pub fn resume(config: Config<'c>, memory: EngineMemory<'m>) -> Result<Self, ConfigError> {
+        let available = memory.capacity();
+        let plan = plan(
+            &config,
+            available,
+            memory.order,
+            &mut memory.free[..available.open_windows],
+        )?;
+        let maps = config.calibration.background.is_some() || config.calibration.gain.is_some();
+        for (state, window) in memory.subapertures.iter_mut().zip(config.windows) {
+            state.bounds = if maps {
+                WindowBounds::of(&config, window)
+            } else {
+                WindowBounds::NONE
+            };
+        }
+        let pool = memory.entries.as_mut_ptr() as usize;
+        let mut engine = Engine {
+            config,
+            calibrator: Calibrator::new(config.calibration),
+            centroider: Centroider::new(config.centroid),
+            memory,
+            pool,
+            stride: plan.stride,
+            history_rows: plan.history_rows,
+            history_row: 0,
+            max_raw: config.camera.max_raw(),
+            row: 0,
+            column: 0,
+            next_to_open: 0,
+            open_len: 0,
+            // Not the open windows' count: `start_frame` lists the free
+            // buffers afresh.
+            free_len: usize::MAX,
+            cursor: 0,
+            finished_in_row: false,
+            disjoint: true,
+            gapless: false,
+            not_ready: 0,
+            next_last_row: u16::MAX,
+            scan: RowScan {
+                row: 0,
+                first: 0,
+                end: 0,
+                bg_delta: 0,
+                position_delta: 0,
+                max_raw: config.camera.max_raw() as u32,
+                bad: 0,
+                gain_row: 0,
+                threshold: config.calibration.threshold.unwrap_or(i32::MIN),
+            },
+            bg_row: 0,
+            position_row: 0,
+            frames: 0,
+            needed: plan.needed,
+            stats: EngineStats::default(),
+            calibrated: [0; MAX_WINDOW_SIDE as usize],
+        };
+        engine.start_frame();
+        Ok(engine)
+    }
+
+    /// What [`new`](Self::new) would answer for `config` and memory of
+    /// `capacity`, without touching any engine's memory: `order` and
+    /// `scratch` are scratch space of at least `config.windows.len()`
+    /// entries each. Lets a caller vet a configuration while another engine
+    /// keeps running.
+    pub fn check(
+        config: &Config<'_>,
+        capacity: MemorySize,
+        order: &mut [u16],
+        scratch: &mut [u16],
+    ) -> Result<MemorySize, ConfigError> {
+        plan(config, capacity, order, scratch).map(|plan| plan.needed)
+    }
+
+    /// The memory this configuration uses (see `memory.rs` for the budget).
+    pub fn memory_needed(&self) -> MemorySize {
+        self.needed
+    }
+
+    pub fn config(&self) -> &Config<'c> {
+        &self.config
+    }
+
+    /// Frames completed since configuration.
+    pub fn frames_completed(&self) -> u32 {
+        self.frames
+    }
+
+    /// How often the slow paths ran since this engine was built.
+    pub fn stats(&self) -> EngineStats {
+        self.stats
+    }
+
+    /// Position of the next expected pixel: (row, column).
+    pub fn position(&self) -> (u16, u16) {
+        (self.row, self.column)
+    }
+
+    /// Whether the engine is between frames (no pixel of a frame seen yet).
+    pub fn at_frame_start(&self) -> bool {
+        self.row == 0 && self.column == 0
+    }
+
+    /// Forgets the temporally filtered levels (SPEC.md §4), and the seeds.
+    pub fn reset_level_filters(&mut self) {
+        let count = self.config.windows.len();
+        for state in &mut self.memory.subapertures[..count] {
+            state.level = SubapertureState::RESET.level;
+            state.seed = SubapertureState::RESET.seed;
+        }
+    }
+
+    /// Drops a partly received frame; the next pixel starts a new frame.
+    pub fn abort_frame(&mut self) {
+        self.start_frame();
+    }
+
+    /// Feeds the next pixels of the frame, in raster order, in a chunk of any
+    /// length (it may end mid-row or run into the next frame).
+    pub fn push(&mut self, pixels: &[u16], sink: &mut impl OutputSink) -> Result<(), FrameError> {
+        let c = self.config.calibration;
+        let check = self.max_raw != u16::MAX;
+        macro_rules! with {
+            ($b:literal, $g:literal, $t:literal) => {
+                if check {
+                    self.push_with::<With<$b, $g, $t>, true>(pixels, sink)
+                } else {
+                    self.push_with::<With<$b, $g, $t>, false>(pixels, sink)
+                }
+            };
+        }
+        match (
+            c.background.is_some(),
+            c.gain.is_some(),
+            c.threshold.is_some(),
+        ) {
+            (false, false, false) => with!(false, false, false),
+            (false, false, true) => with!(false, false, true),
+            (true, false, false) => with!(true, false, false),
+            (true, false, true) => with!(true, false, true),
+            (false, true, false) => with!(false, true, false),
+            (false, true, true) => with!(false, true, true),
+            (true, true, false) => with!(true, true, false),
+            (true, true, true) => with!(true, true, true),
+        }
+    }
+
+    /// `S`: the calibration steps; `CHECK`: whether raw pixels must be
+    /// checked against the bit depth (below 16 bits).
+    fn push_with<S: Steps, const CHECK: bool>(
+        &mut self,
+        mut pixels: &[u16],
+        sink: &mut impl OutputSink,
+    ) -> Result<(), FrameError> {
+        let width = self.config.camera.width;
+        while !pixels.is_empty() {
+            // A frame's first row opens its windows here, when its first
+            // pixel arrives (`start_frame` does not), so that the work after
+            // a frame's last pixel is only its results; the other rows open
+            // theirs at the end of the row before (`end_row`).
+            if self.row == 0 && self.column == 0 && self.next_to_open == 0 {
+                self.open_windows_of_row();
+            }
+            let take = pixels.len().min((width - self.column) as usize);
+            let (part, rest) = pixels.split_at(take);
+            if self.history_rows > 0 {
+                let at = self.history_row + self.column as usize;
+                // SAFETY: the ring holds `history_rows` camera rows (plan),
+                // `history_row` is one of them and the part lies in it.
+                let to = unsafe { self.memory.history.get_unchecked_mut(at..at + take) };
+                copy_pixels(part, to);
+            }
+            let pushed = if take == width as usize {
+                self.push_whole_row::<S, CHECK>(part, sink)
+            } else {
+                self.push_row_part::<S, CHECK>(part, sink)
+            };
+            if let Err(bad) = pushed {
+                let error = FrameError::PixelOutOfRange {
+                    row: self.row,
+                    column: self.column + bad as u16,
+                    value: part[bad],
+                };
+                self.start_frame();
+                return Err(error);
+            }
+            self.column += take as u16;
+            if self.column == width {
+                self.end_row(sink);
+            }
+            pixels = rest;
+        }
+        Ok(())
+    }
+
+    fn end_row(&mut self, sink: &mut impl OutputSink) {
+        let mut layout_changed = false;
+        if self.finished_in_row {
+            // Close finished windows, keeping the others in column order.
+            let memory = &mut self.memory;
+            let mut kept = 0;
+            for k in 0..self.open_len {
+                let window = memory.open[k];
+                if window.finished {
+                    memory.free[self.free_len] = window.buffer_number;
+                    self.free_len += 1;
+                    if window.segment_start == window.segment_end {
+                        self.not_ready -= 1;
+                    }
+                } else {
+                    if kept != k {
+                        memory.open[kept] = window;
+                    }
+                    kept += 1;
+                }
+            }
+            self.open_len = kept;
+            self.finished_in_row = false;
+            layout_changed = true;
+        }
+        self.cursor = 0;
+        self.column = 0;
+        self.row += 1;
+        let width = self.config.camera.width as usize;
+        if self.bg_row != 0 {
+            self.bg_row += 4 * width;
+        }
+        if self.scan.gain_row != 0 {
+            self.scan.gain_row += 2 * width;
+        }
+        self.position_row += 1 << 6;
+        if self.history_rows > 0 {
+            self.history_row += width;
+            if self.history_row == self.history_rows * width {
+                self.history_row = 0;
+            }
+        }
+        if self.row == self.config.camera.height {
+            self.frames = self.frames.wrapping_add(1);
+            sink.frame_complete(self.frames);
+            self.start_frame();
+        } else if self.opens_windows_in_row() {
+            self.open_windows_of_row();
+        } else if layout_changed {
+            self.update_layout();
+        }
+    }
+
+    fn start_frame(&mut self) {
+        let open = self.memory.capacity().open_windows;
+        // After a whole frame every window has closed and its buffer is
+        // free again (in another order, which only moves candidate buffers
+        // in the pool); after an aborted one, or before the first, the
+        // buffers are listed afresh.
+        if self.free_len != open {
+            for (k, f) in self.memory.free[..open].iter_mut().enumerate() {
+                *f = (open - 1 - k) as u16;
+            }
+            self.free_len = open;
+        }
+        self.open_len = 0;
+        self.not_ready = 0;
+        self.cursor = 0;
+        self.finished_in_row = false;
+        self.row = 0;
+        self.column = 0;
+        self.history_row = 0;
+        let c = &self.config.calibration;
+        self.bg_row = c.background.map_or(0, |b| b.as_ptr() as usize);
+        self.scan.gain_row = c.gain.map_or(0, |g| g.as_ptr() as usize);
+        self.position_row = 0;
+        self.next_to_open = 0;
+        self.update_layout();
+        // The first row's windows open in `push_with`.
+    }
+}
+
+/// `to.copy_from_slice(from)`, eight pixels at a time when both are
+/// aligned alike (`prefilter::copy_words`), else a pixel at a time (the
+/// library's `memcpy` goes byte by byte on Cortex-M when the two are not
+/// aligned alike, and is a call even for the empty ends of a split).
+#[inline(always)]
+fn copy_pixels(from: &[u16], to: &mut [u16]) {
+    let n = from.len().min(to.len());
+    let skew = (from.as_ptr() as usize ^ to.as_ptr() as usize) & 3;
+    if skew != 0 || n < 8 {
+        for (t, f) in to.iter_mut().zip(from) {
+            *t = *f;
+        }
+        return;
+    }
+    // Aligned alike: one pixel brings both to a word boundary if they are
+    // not on one, then whole words and at most one pixel.
+    let first = (from.as_ptr() as usize & 2) / 2;
+    let words = (n - first) / 2;
+    if first == 1 {
+        to[0] = from[0];
+    }
+    // SAFETY: from pixel `first` on both are aligned to 4 and hold at least
+    // `2 words` pixels (n >= first + 2 words); any bits are a u32 and a
+    // pair of u16.
+    let (fw, tw) = unsafe {
+        (
+            core::slice::from_raw_parts(from.as_ptr().add(first) as *const u32, words),
+            core::slice::from_raw_parts_mut(to.as_mut_ptr().add(first) as *mut u32, words),
+        )
+    };
+    prefilter::copy_words(fw, tw);
+    let last = first + 2 * words;
+    if last < n {
+        to[last] = from[last];
+    }
+}
+
+/// The offset of the first pixel of `raw` above `max_raw`, if any.
+#[inline(always)]
+pub(super) fn check_range(raw: &[u16], max_raw: u16) -> Result<(), usize> {
+    if prefilter::any_at_least(raw, max_raw + 1) {
+        Err(raw.iter().position(|&r| r > max_raw).unwrap_or(0))
+    } else {
+        Ok(())
+    }
+}

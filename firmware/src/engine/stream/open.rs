@@ -1,0 +1,156 @@
+//! Opening the windows whose first row is the current row: a candidate
+//! buffer from the pool, the seed's thresholds, a place in column order;
+//! and the open windows' layout flags.
+
+use super::admission::{attention, update_admission};
+use super::Engine;
+use crate::engine::centroid::Moments;
+use crate::engine::select::{preferred_capacity, Entry, Ties};
+use crate::engine::window::OpenWindow;
+
+impl Engine<'_, '_> {
+    /// Whether some window's first row is the current row (most rows open
+    /// none: a cheap test before the loop, whose set-up is not).
+    #[inline(always)]
+    pub(super) fn opens_windows_in_row(&self) -> bool {
+        let windows = self.config.windows;
+        self.memory.order[..windows.len()]
+            .get(self.next_to_open)
+            .is_some_and(|&index| windows[index as usize].y == self.row)
+    }
+    /// Opens the windows whose first row is the current row.
+    pub(super) fn open_windows_of_row(&mut self) {
+        let windows = self.config.windows;
+        while self.next_to_open < windows.len() {
+            let index = self.memory.order[self.next_to_open] as usize;
+            let w = windows[index];
+            if w.y != self.row {
+                break;
+            }
+            self.next_to_open += 1;
+            // Capacity was proved sufficient when the engine was configured.
+            self.free_len -= 1;
+            let number = self.memory.free[self.free_len];
+            let n = self.config.pixel_count(index);
+            // The stride is at least every window's least capacity (plan).
+            let capacity = preferred_capacity(self.config.selection.rule, n, w.pixel_count())
+                .min(self.stride as u16);
+            let state = &self.memory.subapertures[index];
+            let (hint, low) = if capacity > 0 {
+                state.seed.thresholds()
+            } else {
+                (0, 0)
+            };
+            // Its place in column order.
+            let open = &mut self.memory.open;
+            let mut k = self.open_len;
+            while k > 0 && open[k - 1].x > w.x {
+                k -= 1;
+            }
+            if k < self.open_len {
+                open.copy_within(k..self.open_len, k + 1);
+            }
+            self.open_len += 1;
+            let buffer = self.pool + number as usize * self.stride * core::mem::size_of::<Entry>();
+            // Field by field, in place, through a pattern that names every
+            // field (so a new one fails to compile here until it is set): as
+            // one struct literal the compiler built part of it on the stack
+            // and copied it with a byte-wise `memcpy` call (~200
+            // instructions a window on Cortex-M4).
+            let OpenWindow {
+                segment_start,
+                segment_end,
+                lanes,
+                admit,
+                position_base,
+                hint: window_hint,
+                front_end,
+                back_start,
+                attention: window_attention,
+                room,
+                buffer: window_buffer,
+                capacity: window_capacity,
+                buffer_number,
+                index: window_index,
+                x,
+                end_column,
+                y,
+                last_row,
+                width,
+                height,
+                n: window_n,
+                at_hint,
+                counted,
+                hint_ties,
+                low: window_low,
+                low_ties,
+                floor,
+                finished,
+                strict,
+                rescan,
+                bounds,
+                moments,
+            } = &mut open[k];
+            *segment_start = 0;
+            *segment_end = 0;
+            *lanes = 0;
+            *admit = low;
+            *position_base = 0u32
+                .wrapping_sub((w.y as u32) << 6)
+                .wrapping_sub(w.x as u32);
+            *window_hint = hint;
+            *front_end = buffer;
+            *back_start = buffer + capacity as usize * core::mem::size_of::<Entry>();
+            *window_attention = usize::MAX;
+            *room = 8 * w.width as u32;
+            *window_buffer = buffer;
+            *window_capacity = capacity;
+            *buffer_number = number;
+            *window_index = index as u16;
+            *x = w.x;
+            *end_column = w.end_column();
+            *y = w.y;
+            *last_row = w.last_row();
+            *width = w.width;
+            *height = w.height;
+            *window_n = n;
+            *at_hint = 0;
+            *counted = 0;
+            *hint_ties = Ties::NONE;
+            *window_low = low;
+            *low_ties = Ties::NONE;
+            *floor = 0;
+            *finished = false;
+            *strict = false;
+            *rescan = false;
+            *bounds = state.bounds;
+            *moments = Moments::ZERO;
+            // A window without selection keeps floor 0 (every segment to
+            // `segment_rest`).
+            let window = &mut open[k];
+            if capacity > 0 {
+                update_admission(window, &self.config.calibration, self.max_raw);
+                window.attention = attention(window, self.config.selection.rule);
+            }
+            if !window.update_kernel_segment() {
+                self.not_ready += 1;
+            }
+        }
+        self.update_layout();
+    }
+
+    /// The open windows' layout flags: `disjoint`, `gapless` and
+    /// `next_last_row`.
+    pub(super) fn update_layout(&mut self) {
+        let open = &self.memory.open[..self.open_len];
+        self.disjoint = open.windows(2).all(|pair| pair[0].end_column <= pair[1].x);
+        self.gapless = !open.is_empty()
+            && open[0].x == 0
+            && open[open.len() - 1].end_column == self.config.camera.width
+            && open.windows(2).all(|pair| pair[0].end_column == pair[1].x);
+        self.next_last_row = open.iter().map(|w| w.last_row).min().unwrap_or(u16::MAX);
+        let range = self.memory.open[..self.open_len].as_mut_ptr_range();
+        self.scan.first = range.start as usize;
+        self.scan.end = range.end as usize;
+    }
+}

@@ -1,0 +1,393 @@
+//! A camera row's pixels routed to the open windows: runs of kernel-ready
+//! windows to the row kernel (`scan::row`), the others a window at a time on
+//! the general path (`scan::scan`), with the gaps between windows checked
+//! against the bit depth in raster order.
+
+use super::admission::{attention, make_room, place, raise_to_hint, update_admission};
+use super::{check_range, Engine, OutputSink};
+use crate::engine::calibrate::{self, Steps};
+use crate::engine::scan::{self, scan, RowStop, Segment, Stop};
+use crate::engine::select::pack;
+use crate::engine::window::{OpenWindow, SegmentPath};
+
+impl Engine<'_, '_> {
+    /// A whole camera row. On a pixel out of range, returns its column; the
+    /// windows whose last pixel came before it have been emitted, no other.
+    ///
+    /// Windows are visited in column order: each run of `kernel_ready` ones
+    /// by the row kernel, the others on the general path. That needs a
+    /// word-aligned row, and below 16 bits (where the first pixel out of
+    /// range must be found in raster order) every pixel of the row in a
+    /// window, since only windows' pixels are checked.
+    #[inline(always)]
+    pub(super) fn push_whole_row<S: Steps, const CHECK: bool>(
+        &mut self,
+        row_pixels: &[u16],
+        sink: &mut impl OutputSink,
+    ) -> Result<(), usize> {
+        let row_address = row_pixels.as_ptr() as usize;
+        if row_address & 3 != 0 || (CHECK && !self.gapless) {
+            return self.push_whole_row_general::<S, CHECK>(row_pixels, sink);
+        }
+        let row = self.row;
+        let mut k = 0;
+        while k < self.open_len {
+            let ready = |w: &OpenWindow| w.segment_start != w.segment_end;
+            let end = if self.not_ready == 0 {
+                self.open_len
+            } else if !ready(&self.memory.open[k]) {
+                let w = &self.memory.open[k];
+                let (x, end, y) = (w.x as usize, w.end_column as usize, w.y);
+                let pixel = row as usize * row_pixels.len() + x;
+                if let Err(b) = self.segment::<S, CHECK>(k, &row_pixels[x..end], pixel, 0, row - y)
+                {
+                    self.finish_before(k, sink);
+                    return Err(x + b);
+                }
+                k += 1;
+                continue;
+            } else {
+                // A run of ready windows (none becomes ready or not before
+                // the kernel has passed it).
+                let mut end = k + 1;
+                while end < self.open_len && ready(&self.memory.open[end]) {
+                    end += 1;
+                }
+                end
+            };
+            if let Some((window, pixel)) = self.kernel_run::<S, CHECK>(row_address, k, end) {
+                self.finish_before(window, sink);
+                return Err((pixel - row_address) / 2);
+            }
+            k = end;
+        }
+        if row == self.next_last_row {
+            for k in 0..self.open_len {
+                if self.memory.open[k].last_row == row {
+                    self.finish(k, sink);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The row kernel over the open windows `k .. end` (all
+    /// `kernel_ready`), of the current row at `row_address` (word-aligned).
+    /// On a pixel out of range (`CHECK`), the index of its window and its
+    /// address.
+    pub(super) fn kernel_run<S: Steps, const CHECK: bool>(
+        &mut self,
+        row_address: usize,
+        k: usize,
+        end: usize,
+    ) -> Option<(usize, usize)> {
+        const SIZE: usize = core::mem::size_of::<OpenWindow>();
+        let (first, all) = (self.scan.first, self.scan.end);
+        self.scan.row = row_address;
+        self.scan.bg_delta = self.bg_row.wrapping_sub(2 * row_address).wrapping_sub(16);
+        self.scan.position_delta = self
+            .position_row
+            .wrapping_sub(4)
+            .wrapping_sub((row_address >> 1) as u32);
+        self.scan.first = first + k * SIZE;
+        self.scan.end = first + end * SIZE;
+        let stopped = loop {
+            // SAFETY: the windows `k .. end` are kernel-ready and their
+            // segments lie in the part of the row the caller holds.
+            match unsafe { scan::row::<S, CHECK>(&mut self.scan) } {
+                RowStop::Done => break None,
+                RowStop::Attention(address) => {
+                    self.attend((address - first) / SIZE);
+                    self.scan.first = address + SIZE;
+                }
+                RowStop::OutOfRange { window, pixel } => {
+                    break Some(((window - first) / SIZE, pixel))
+                }
+            }
+        };
+        self.scan.first = first;
+        self.scan.end = all;
+        stopped
+    }
+
+    /// A pixel out of range in window `k`'s segment of a gapless row: the
+    /// windows before it that end in this row are complete.
+    #[cold]
+    pub(super) fn finish_before(&mut self, k: usize, sink: &mut impl OutputSink) {
+        for j in 0..k {
+            if self.memory.open[j].last_row == self.row {
+                self.finish(j, sink);
+            }
+        }
+    }
+
+    /// [`push_whole_row`](Self::push_whole_row) a window at a time, on the
+    /// general path: for rows the kernel cannot take. Windows are visited
+    /// left to right and each gap is checked before the window after it.
+    pub(super) fn push_whole_row_general<S: Steps, const CHECK: bool>(
+        &mut self,
+        row_pixels: &[u16],
+        sink: &mut impl OutputSink,
+    ) -> Result<(), usize> {
+        if !self.disjoint {
+            return self.push_row_part::<S, CHECK>(row_pixels, sink);
+        }
+        let row = self.row;
+        let row_offset = row as usize * row_pixels.len();
+        let mut checked = 0;
+        for k in 0..self.open_len {
+            let window = &self.memory.open[k];
+            let (x, end) = (window.x as usize, window.end_column as usize);
+            let (last, y) = (row == window.last_row, window.y);
+            if CHECK && x > checked {
+                check_range(&row_pixels[checked..x], self.max_raw).map_err(|b| checked + b)?;
+            }
+            self.segment::<S, CHECK>(k, &row_pixels[x..end], row_offset + x, 0, row - y)
+                .map_err(|b| x + b)?;
+            if last {
+                self.finish(k, sink);
+            }
+            checked = end;
+        }
+        if CHECK && checked < row_pixels.len() {
+            check_range(&row_pixels[checked..], self.max_raw).map_err(|b| checked + b)?;
+        }
+        Ok(())
+    }
+
+    /// Pixels `column .. column + part.len()` of the current row. On a pixel
+    /// out of range, returns its offset in `part`; every window whose last
+    /// pixel came before it has been emitted, no other.
+    ///
+    /// Why that holds in one pass: windows are visited by first column and
+    /// each one's segment is checked pixel by pixel in order (the
+    /// pre-filter never skips an out-of-range pixel, see
+    /// `OpenWindow::floor`), the gaps between windows when they are passed.
+    /// So the first bad pixel found, at column `c`, is the first of the part:
+    /// everything before it was covered by an earlier window's segment, a
+    /// gap, or the finding window's own segment. The part is then cut at
+    /// `c`, and the remaining windows see only their pixels before it: those
+    /// that end there are still emitted, as they must be.
+    pub(super) fn push_row_part<S: Steps, const CHECK: bool>(
+        &mut self,
+        part: &[u16],
+        sink: &mut impl OutputSink,
+    ) -> Result<(), usize> {
+        let start = self.column;
+        let mut end = start + part.len() as u16;
+        let mut bad = None;
+        let row = self.row;
+        let row_offset = row as usize * self.config.camera.width as usize;
+        // Columns checked against the bit depth so far.
+        let mut checked = start;
+        let mut k = self.cursor;
+        // The row's first pixel's address, if word-aligned: then the windows
+        // wholly inside the part take the row kernel, in runs (below 16
+        // bits, runs of windows without gaps between them, the gap before
+        // a run checked first, so that the first pixel out of range is
+        // still found in raster order).
+        let row_address = (part.as_ptr() as usize).wrapping_sub(2 * start as usize);
+        let kernel = row_address & 3 == 0;
+        while k < self.open_len {
+            if kernel {
+                let inside = |w: &OpenWindow, end: u16| {
+                    w.segment_start != w.segment_end && w.x >= start && w.end_column <= end
+                };
+                let x = self.memory.open[k].x;
+                if CHECK && bad.is_none() && x > checked && inside(&self.memory.open[k], end) {
+                    let gap = (checked - start) as usize..(x - start) as usize;
+                    if let Err(b) = check_range(&part[gap.clone()], self.max_raw) {
+                        bad = Some(gap.start + b);
+                        end = start + (gap.start + b) as u16;
+                    }
+                }
+                if inside(&self.memory.open[k], end) {
+                    let mut run_end = k + 1;
+                    while run_end < self.open_len
+                        && inside(&self.memory.open[run_end], end)
+                        && (!CHECK
+                            || self.memory.open[run_end].x
+                                == self.memory.open[run_end - 1].end_column)
+                    {
+                        run_end += 1;
+                    }
+                    let done = match self.kernel_run::<S, CHECK>(row_address, k, run_end) {
+                        None => run_end,
+                        Some((w, pixel)) => {
+                            let b = (pixel - part.as_ptr() as usize) / 2;
+                            bad = Some(b);
+                            end = start + b as u16;
+                            w
+                        }
+                    };
+                    for j in k..done {
+                        if self.memory.open[j].last_row == row {
+                            self.finish(j, sink);
+                        }
+                    }
+                    if CHECK && done > k {
+                        checked = checked.max(self.memory.open[done - 1].end_column);
+                    }
+                    if self.cursor == k {
+                        self.cursor = done;
+                    }
+                    // On a pixel out of range, its window is abandoned with
+                    // the frame (and every window after it in the run
+                    // starts after that pixel).
+                    k = if done < run_end { done + 1 } else { done };
+                    continue;
+                }
+            }
+            let window = &self.memory.open[k];
+            let (x, end_column, y, last_row) =
+                (window.x, window.end_column, window.y, window.last_row);
+            if x >= end {
+                break;
+            }
+            let from = x.max(start);
+            if CHECK && bad.is_none() && from > checked {
+                let gap = (checked - start) as usize..(from - start) as usize;
+                if let Err(b) = check_range(&part[gap.clone()], self.max_raw) {
+                    bad = Some(gap.start + b);
+                    end = start + (gap.start + b) as u16;
+                    if x >= end {
+                        break;
+                    }
+                }
+            }
+            let to = end_column.min(end);
+            if from < to {
+                let at = (from - start) as usize;
+                let checked_segment = self.segment::<S, CHECK>(
+                    k,
+                    &part[at..(to - start) as usize],
+                    row_offset + from as usize,
+                    from - x,
+                    row - y,
+                );
+                match checked_segment {
+                    Ok(()) => {
+                        if to == end_column && row == last_row {
+                            self.finish(k, sink);
+                        }
+                    }
+                    Err(b) => {
+                        bad = Some(at + b);
+                        end = from + b as u16;
+                    }
+                }
+                if CHECK {
+                    checked = checked.max(to);
+                }
+            }
+            if k == self.cursor && end_column <= end {
+                self.cursor += 1;
+            }
+            k += 1;
+        }
+        if CHECK && bad.is_none() && checked < end {
+            let gap = (checked - start) as usize;
+            check_range(&part[gap..], self.max_raw).map_err(|b| gap + b)?;
+        }
+        bad.map_or(Ok(()), Err)
+    }
+
+    /// One window's pixels of the current row on the general path: columns
+    /// `i0 ..` of its row `j`, `pixel` the row-major index of the first.
+    /// Returns the offset of a pixel out of range.
+    #[inline(always)]
+    pub(super) fn segment<S: Steps, const CHECK: bool>(
+        &mut self,
+        k: usize,
+        raw: &[u16],
+        pixel: usize,
+        i0: u16,
+        j: u16,
+    ) -> Result<(), usize> {
+        match self.memory.open[k].path(raw) {
+            SegmentPath::Rejected => Ok(()),
+            SegmentPath::Candidates | SegmentPath::General => {
+                self.segment_rest::<S, CHECK>(k, raw, pixel, i0, j)
+            }
+        }
+    }
+
+    /// The rest of [`segment`](Self::segment): windows without selection,
+    /// windows awaiting a rescan, and segments with candidates.
+    #[inline(never)]
+    pub(super) fn segment_rest<S: Steps, const CHECK: bool>(
+        &mut self,
+        k: usize,
+        raw: &[u16],
+        pixel: usize,
+        i0: u16,
+        j: u16,
+    ) -> Result<(), usize> {
+        let memory = &mut self.memory;
+        let window = &mut memory.open[k];
+        if window.capacity == 0 {
+            // No selection: every pixel weighs its value.
+            if CHECK {
+                check_range(raw, self.max_raw)?;
+            }
+            // SAFETY: the segment lies in the camera (a window's row,
+            // validated configuration).
+            let (background, gain, fixed) =
+                unsafe { calibrate::run_maps::<S>(&self.config.calibration, pixel, raw.len()) };
+            window
+                .moments
+                .add_raw_row::<S>(raw, background, gain, fixed, i0, j);
+            return Ok(());
+        }
+        if window.rescan {
+            return if CHECK {
+                check_range(raw, self.max_raw)
+            } else {
+                Ok(())
+            };
+        }
+        // SAFETY: the segment lies in the camera (a window's row, validated
+        // configuration).
+        let (background, gain, fixed) =
+            unsafe { calibrate::run_maps::<S>(&self.config.calibration, pixel, raw.len()) };
+        let max_raw = self.max_raw;
+        let mut start = 0;
+        let outcome = loop {
+            let segment = Segment {
+                raw: &raw[start..],
+                start,
+                background,
+                gain,
+                fixed,
+                base: pack(i0, j),
+                max_raw,
+            };
+            let (k, entry) = match scan::<S, CHECK>(window, &segment) {
+                Stop::End => break Ok(()),
+                Stop::OutOfRange(k) => return Err(k),
+                Stop::Full { k, entry } => (k, entry),
+            };
+            // Full: drop the back tier if the front proves it useless, else
+            // raise `low` to the cutoff so far; then place the pixel again.
+            self.stats.compactions = self.stats.compactions.wrapping_add(1);
+            if !make_room(window, &self.config, memory.scratch) {
+                window.rescan = true;
+                window.floor = 0;
+                break if CHECK {
+                    check_range(&raw[k + 1..], max_raw).map_err(|b| k + 1 + b)
+                } else {
+                    Ok(())
+                };
+            }
+            update_admission(window, &self.config.calibration, max_raw);
+            place(window, entry);
+            start = k + 1;
+        };
+        if !window.rescan {
+            raise_to_hint(window, &self.config, max_raw);
+        }
+        window.attention = attention(window, self.config.selection.rule);
+        self.refresh_ready(k);
+        outcome
+    }
+}
