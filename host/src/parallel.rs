@@ -52,6 +52,7 @@ use crate::io::FrameShape;
 use brightpix_firmware::engine::{FrameError, OutputSink, SubapertureResult};
 use brightpix_protocol::{Camera, Config, ConfigError, PixelCount};
 use rayon::prelude::*;
+use std::sync::Mutex;
 
 /// A batch's slopes, flux and validity, frame-major: entry `f * subapertures
 /// + s` is frame `f`, sub-aperture `s` (the configuration's window order).
@@ -373,6 +374,13 @@ pub struct ParallelEngine {
     level_filter: bool,
     /// All windows, in configuration order, over the rows they span.
     whole: Part,
+    /// Engine memory for `whole`, one per worker thread, made when a batch
+    /// is first split by frames and kept from run to run and batch to
+    /// batch: a run then starts from the seeds its thread's last run left
+    /// (seeds set only where selection starts, never the results; without
+    /// the level filter nothing else carries over) instead of cold, and
+    /// allocates nothing.
+    worker_memory: Vec<Mutex<Option<EngineBuffers>>>,
     bands: Vec<Band>,
     workers: Workers,
 }
@@ -422,6 +430,7 @@ impl ParallelEngine {
             subapertures: count,
             level_filter: config.selection.level_filter.is_some(),
             whole,
+            worker_memory: (0..workers.threads()).map(|_| Mutex::new(None)).collect(),
             bands,
             workers,
         })
@@ -493,7 +502,7 @@ impl ParallelEngine {
                 true,
             )
         } else if !self.level_filter && shape.frames >= threads {
-            let whole = &self.whole;
+            let (whole, memory) = (&self.whole, &self.worker_memory);
             // A few runs per thread, so a thread slowed by others catches up,
             // of at least about a million pixels (each run starts an engine).
             let run = shape
@@ -506,14 +515,15 @@ impl ParallelEngine {
                     .par_chunks(run * frame_pixels)
                     .zip(out.par_chunks(run * per_frame))
                     .enumerate()
-                    .try_for_each_init(
-                        || whole.buffers(),
-                        |buffers, (k, (pixels, out))| {
-                            whole
-                                .run(buffers, pixels, frame_pixels, out, per_frame, false)
-                                .map_err(|(f, e)| (k * run + f, e))
-                        },
-                    )
+                    .try_for_each(|(k, (pixels, out))| {
+                        // Each worker locks only its own memory: never contended.
+                        let worker = rayon::current_thread_index().unwrap_or(0) % memory.len();
+                        let mut slot = memory[worker].lock().unwrap_or_else(|e| e.into_inner());
+                        let buffers = slot.get_or_insert_with(|| whole.buffers());
+                        whole
+                            .run(buffers, pixels, frame_pixels, out, per_frame, false)
+                            .map_err(|(f, e)| (k * run + f, e))
+                    })
             })
         } else {
             self.run_bands(pixels, shape, out)

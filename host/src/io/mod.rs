@@ -477,54 +477,73 @@ impl FrameSource {
 
     /// Reads frame `index` (0-based) into `out`, replacing its contents.
     pub fn read_frame_into(&mut self, index: usize, out: &mut Vec<u16>) -> Result<(), IoError> {
+        out.clear();
+        self.read_frames_into(index, 1, out)
+    }
+
+    /// Reads frames `first .. first + count` and appends them to `out`,
+    /// frame after frame: a run of `.npy` frames in one read, straight into
+    /// `out` (uint16 in the machine's byte order needs no decoding). On an
+    /// error `out` may hold some of the frames.
+    pub fn read_frames_into(
+        &mut self,
+        first: usize,
+        count: usize,
+        out: &mut Vec<u16>,
+    ) -> Result<(), IoError> {
         let shape = self.layout.shape;
-        if index >= shape.frames {
+        if first
+            .checked_add(count)
+            .is_none_or(|end| end > shape.frames)
+        {
+            let last = first.saturating_add(count.max(1) - 1);
             return Err(IoError::unexpected(
                 &self.path,
-                format!("a request for frame {index}"),
+                format!("a request for frame {last}"),
                 format!("a frame index below {}", shape.frames),
             ));
         }
         let n = shape.pixels_per_frame();
-        out.clear();
+        let start = out.len();
         if let Some(fits) = &mut self.fits {
-            fits.read(&self.path, index * n, n, &mut self.values)?;
-            for (pixel, &v) in self.values.iter().enumerate() {
-                if v.is_nan() {
-                    return Err(pixel_error(
-                        &self.path,
-                        index,
-                        shape.width,
-                        pixel,
-                        PixelProblem::Blank,
-                    ));
+            for index in first..first + count {
+                fits.read(&self.path, index * n, n, &mut self.values)?;
+                for (pixel, &v) in self.values.iter().enumerate() {
+                    if v.is_nan() {
+                        return Err(pixel_error(
+                            &self.path,
+                            index,
+                            shape.width,
+                            pixel,
+                            PixelProblem::Blank,
+                        ));
+                    }
+                    if !(0.0..=65535.0).contains(&v) || v.fract() != 0.0 {
+                        let problem = if v.fract() != 0.0 {
+                            PixelProblem::NotInteger(v)
+                        } else {
+                            PixelProblem::Range(v.clamp(i64::MIN as f64, i64::MAX as f64) as i64)
+                        };
+                        return Err(pixel_error(&self.path, index, shape.width, pixel, problem));
+                    }
+                    out.push(v as u16);
                 }
-                if !(0.0..=65535.0).contains(&v) || v.fract() != 0.0 {
-                    let problem = if v.fract() != 0.0 {
-                        PixelProblem::NotInteger(v)
-                    } else {
-                        PixelProblem::Range(v.clamp(i64::MIN as f64, i64::MAX as f64) as i64)
-                    };
-                    return Err(pixel_error(&self.path, index, shape.width, pixel, problem));
-                }
-                out.push(v as u16);
             }
         } else if let Some(all) = &self.layout.preloaded {
-            out.extend_from_slice(&all[index * n..(index + 1) * n]);
+            out.extend_from_slice(&all[first * n..(first + count) * n]);
         } else {
-            let bpp = self.layout.encoding.bytes_per_pixel();
-            let offset = self.layout.data_offset + (index * n * bpp) as u64;
-            self.buffer.resize(n * bpp, 0);
+            let encoding = self.layout.encoding;
+            let offset = self.layout.data_offset + (first * n * encoding.bytes_per_pixel()) as u64;
             self.file
                 .seek(SeekFrom::Start(offset))
-                .and_then(|_| self.file.read_exact(&mut self.buffer))
                 .map_err(|e| IoError::io(&self.path, e))?;
-            decode(&self.buffer, self.layout.encoding, out).map_err(|(pixel, problem)| {
-                pixel_error(&self.path, index, shape.width, pixel, problem)
-            })?;
+            read_pixels(&mut self.file, encoding, count * n, out, &mut self.buffer)
+                .map_err(|e| IoError::io(&self.path, e))?;
         }
         if let Some(camera) = &self.camera {
-            check_frame(&self.path, index, shape.width, out, camera)?;
+            for (k, frame) in out[start..].chunks_exact(n.max(1)).enumerate() {
+                check_frame(&self.path, first + k, shape.width, frame, camera)?;
+            }
         }
         Ok(())
     }
@@ -540,11 +559,7 @@ impl FrameSource {
     pub fn read_all(mut self) -> Result<FrameCube, IoError> {
         let shape = self.layout.shape;
         let mut pixels = Vec::with_capacity(shape.frames * shape.pixels_per_frame());
-        let mut frame = Vec::new();
-        for index in 0..shape.frames {
-            self.read_frame_into(index, &mut frame)?;
-            pixels.extend_from_slice(&frame);
-        }
+        self.read_frames_into(0, shape.frames, &mut pixels)?;
         Ok(FrameCube { shape, pixels })
     }
 }
@@ -711,25 +726,41 @@ fn pixel_error(
     }
 }
 
-/// Decodes one frame's bytes; on failure, the pixel index and the problem.
-pub(crate) fn decode(
-    bytes: &[u8],
+/// Reads `count` pixels of `encoding` from `file` and appends them to `out`:
+/// 16-bit pixels straight into `out`'s memory (then put in the machine's
+/// byte order in place), 8-bit ones through `buffer`.
+fn read_pixels(
+    file: &mut File,
     encoding: Encoding,
+    count: usize,
     out: &mut Vec<u16>,
-) -> Result<(), (usize, PixelProblem)> {
-    out.clear();
+    buffer: &mut Vec<u8>,
+) -> std::io::Result<()> {
+    let start = out.len();
     match encoding {
-        Encoding::U8 => out.extend(bytes.iter().map(|&b| b as u16)),
-        Encoding::U16 { big_endian: false } => out.extend(
-            bytes
-                .chunks_exact(2)
-                .map(|b| u16::from_le_bytes([b[0], b[1]])),
-        ),
-        Encoding::U16 { big_endian: true } => out.extend(
-            bytes
-                .chunks_exact(2)
-                .map(|b| u16::from_be_bytes([b[0], b[1]])),
-        ),
+        Encoding::U8 => {
+            buffer.resize(count, 0);
+            file.read_exact(buffer)?;
+            out.extend(buffer.iter().map(|&b| b as u16));
+        }
+        Encoding::U16 { big_endian } => {
+            out.resize(start + count, 0);
+            let tail = &mut out[start..];
+            // SAFETY: `tail` is `2 count` initialised bytes, and any bytes
+            // are a valid u16.
+            let bytes = unsafe {
+                std::slice::from_raw_parts_mut(tail.as_mut_ptr() as *mut u8, 2 * tail.len())
+            };
+            if let Err(e) = file.read_exact(bytes) {
+                out.truncate(start);
+                return Err(e);
+            }
+            if big_endian != cfg!(target_endian = "big") {
+                for v in tail.iter_mut() {
+                    *v = v.swap_bytes();
+                }
+            }
+        }
     }
     Ok(())
 }
@@ -884,6 +915,50 @@ mod tests {
             let err = FrameSource::open_for_camera(&path, &camera(3, 4, 16)).unwrap_err();
             assert!(matches!(err, IoError::Unexpected { .. }), "{err}");
             assert!(err.to_string().contains("4x3"), "{err}");
+        }
+    }
+
+    #[test]
+    fn a_run_of_frames_is_read_at_once_as_frame_by_frame() {
+        let dir = temp_dir("runs");
+        let pixels = ramp_u16(4 * 3 * 5);
+        let bytes: Vec<u8> = pixels.iter().map(|&v| v as u8).collect();
+        for ext in ["npy", "fits"] {
+            let path16 = dir.join(format!("run16.{ext}"));
+            write_array(&path16, &[4, 3, 5], &pixels).unwrap();
+            let path8 = dir.join(format!("run8.{ext}"));
+            write_array(&path8, &[4, 3, 5], &bytes).unwrap();
+            for path in [&path16, &path8] {
+                let mut source = FrameSource::open(path).unwrap();
+                let mut expected = vec![7u16];
+                for index in 1..4 {
+                    expected.extend(source.read_frame(index).unwrap());
+                }
+                // Appended after what `out` holds.
+                let mut out = vec![7u16];
+                source.read_frames_into(1, 3, &mut out).unwrap();
+                assert_eq!(out, expected, "{}", path.display());
+                let mut none = Vec::new();
+                source.read_frames_into(4, 0, &mut none).unwrap();
+                assert!(none.is_empty());
+                let err = source.read_frames_into(2, 3, &mut out).unwrap_err();
+                assert!(err.to_string().contains("frame 4"), "{err}");
+            }
+        }
+        // The camera check names the frame within the run.
+        let mut data = vec![100u16; 3 * 3 * 5];
+        data[2 * 15 + 7] = 4096; // frame 2, row 1, column 2
+        let path = dir.join("bad.npy");
+        write_array(&path, &[3, 3, 5], &data).unwrap();
+        let mut source = FrameSource::open_for_camera(&path, &camera(5, 3, 12)).unwrap();
+        match source.read_frames_into(0, 3, &mut Vec::new()).unwrap_err() {
+            IoError::PixelRange {
+                frame: 2,
+                row: 1,
+                column: 2,
+                ..
+            } => {}
+            other => panic!("{other:?}"),
         }
     }
 
