@@ -433,10 +433,15 @@ impl Config<'_> {
                     found: map.len(),
                 });
             }
-            if let Some(pixel) = map
-                .iter()
-                .position(|b| b.unsigned_abs() > MAX_BACKGROUND_ABS as u32)
-            {
+            // The largest magnitude first, in a loop without an exit (it
+            // vectorises; engines validate their configuration each time
+            // they are built), then the first pixel over, if any.
+            let largest = map.iter().fold(0, |m, b| m.max(b.unsigned_abs()));
+            if largest > MAX_BACKGROUND_ABS as u32 {
+                let pixel = map
+                    .iter()
+                    .position(|b| b.unsigned_abs() > MAX_BACKGROUND_ABS as u32)
+                    .unwrap_or(0);
                 return Err(ConfigError::BackgroundOutOfRange {
                     pixel,
                     value: map[pixel],

@@ -230,6 +230,7 @@ fn add(total: &mut EngineStats, s: EngineStats) {
 #[test]
 fn every_seed_path_agrees_with_the_reference() {
     let mut total = EngineStats::default();
+    let mut whole_frame_rescans = 0;
     for rule in rules() {
         for n in [1, 5, 20, 60] {
             for filter in [false, true] {
@@ -245,6 +246,11 @@ fn every_seed_path_agrees_with_the_reference() {
                     add(&mut total, run(&c, None, 7 + n as u64));
                     add(&mut total, run(&c, Some(7), 7 + n as u64));
                     add(&mut total, run(&c, Some(38), 7 + n as u64));
+                    // A whole frame in one call: rescans read the caller's
+                    // frame instead of the row history (not written then).
+                    let whole = run(&c, Some(usize::MAX), 7 + n as u64);
+                    whole_frame_rescans += whole.rescans;
+                    add(&mut total, whole);
                 }
             }
         }
@@ -252,12 +258,60 @@ fn every_seed_path_agrees_with_the_reference() {
     // Each path ran (the counters are speed-only state: if a change to the
     // seeds stopped driving a path, this test would no longer test it).
     assert!(total.rescans > 0, "no window was rescanned: {total:?}");
+    assert!(
+        whole_frame_rescans > 0,
+        "no window of a whole frame pushed at once was rescanned"
+    );
     assert!(total.compactions > 0, "no buffer was compacted: {total:?}");
     assert!(
         total.attentions > 0,
         "the row kernel never stopped at a window: {total:?}"
     );
     assert!(total.windows > 0);
+}
+
+/// Every frame of a sequence in one call (a frame whole from its first
+/// pixel on, then the next): the rescans of each read that frame's rows in
+/// the caller's slice, not the rows of another.
+#[test]
+fn frames_pushed_together_agree_with_the_reference() {
+    let mut rescans = 0;
+    for rule in rules() {
+        for n in [5, 20] {
+            let c = case(grid(), rule, n, false);
+            let config = c.view();
+            let mut reference = Reference::new(&config).expect("valid configuration");
+            let mut buffers = EngineBuffers::for_config(&config);
+            let mut engine = Engine::new(config, buffers.memory()).expect("valid configuration");
+            let mut rng = Rng(11 + n as u64);
+            let frames: Vec<Vec<u16>> = scenes()
+                .into_iter()
+                .map(|scene| frame(c.camera, scene, &mut rng))
+                .collect();
+            let mut got: Vec<SubapertureResult> = Vec::new();
+            engine
+                .push(&frames.concat(), &mut |r: SubapertureResult| got.push(r))
+                .expect("pixels are in range");
+            let windows = config.windows.len();
+            assert_eq!(got.len(), frames.len() * windows);
+            for (f, (pixels, results)) in frames.iter().zip(got.chunks_mut(windows)).enumerate() {
+                results.sort_by_key(|r| r.index);
+                let want = reference
+                    .process_frame(pixels)
+                    .expect("pixels are in range");
+                for (w, g) in want.iter().zip(results.iter()) {
+                    assert_eq!(
+                        (w.index, w.slope_x, w.slope_y, w.flux, w.valid),
+                        (g.index as usize, g.slope_x, g.slope_y, g.flux, g.valid),
+                        "frame {f} ({rule:?}, N {n}), sub-aperture {}",
+                        w.index
+                    );
+                }
+            }
+            rescans += engine.stats().rescans;
+        }
+    }
+    assert!(rescans > 0, "no window was rescanned");
 }
 
 #[test]

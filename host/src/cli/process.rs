@@ -126,8 +126,9 @@ pub fn run(args: ProcessArgs) -> Result<()> {
         let mut first = 0;
         while first < frames {
             let count = batch_frames.min(frames - first);
-            pixels.clear();
-            source.read_frames_into(first, count, &mut pixels)?;
+            // Zeroed only as it grows: each batch is read over the last.
+            pixels.resize(count * shape.pixels_per_frame(), 0);
+            source.read_frames_to(first, &mut pixels)?;
             let batch = FrameShape {
                 frames: count,
                 ..shape

@@ -482,33 +482,46 @@ impl FrameSource {
     }
 
     /// Reads frames `first .. first + count` and appends them to `out`,
-    /// frame after frame: a run of `.npy` frames in one read, straight into
-    /// `out` (uint16 in the machine's byte order needs no decoding). On an
-    /// error `out` may hold some of the frames.
+    /// frame after frame (see [`read_frames_to`](Self::read_frames_to)).
+    /// On an error `out` is as it was.
     pub fn read_frames_into(
         &mut self,
         first: usize,
         count: usize,
         out: &mut Vec<u16>,
     ) -> Result<(), IoError> {
+        self.check_range(first, count)?;
+        let start = out.len();
+        out.resize(start + count * self.layout.shape.pixels_per_frame(), 0);
+        let read = self.read_frames_to(first, &mut out[start..]);
+        if read.is_err() {
+            out.truncate(start);
+        }
+        read
+    }
+
+    /// Reads frames from `first` on into `out`, as many as it holds (its
+    /// length a whole number of frames), frame after frame: a run of `.npy`
+    /// frames in one read, straight into `out` (uint16 in the machine's
+    /// byte order needs no decoding). A caller that reads batch after batch
+    /// into the same buffer writes each pixel once.
+    pub fn read_frames_to(&mut self, first: usize, out: &mut [u16]) -> Result<(), IoError> {
         let shape = self.layout.shape;
-        if first
-            .checked_add(count)
-            .is_none_or(|end| end > shape.frames)
-        {
-            let last = first.saturating_add(count.max(1) - 1);
+        let n = shape.pixels_per_frame();
+        let count = out.len().checked_div(n).unwrap_or(0);
+        if count * n != out.len() {
             return Err(IoError::unexpected(
                 &self.path,
-                format!("a request for frame {last}"),
-                format!("a frame index below {}", shape.frames),
+                format!("a buffer of {} pixels", out.len()),
+                format!("whole frames of {n} pixels"),
             ));
         }
-        let n = shape.pixels_per_frame();
-        let start = out.len();
+        self.check_range(first, count)?;
         if let Some(fits) = &mut self.fits {
-            for index in first..first + count {
+            for (k, frame) in out.chunks_exact_mut(n).enumerate() {
+                let index = first + k;
                 fits.read(&self.path, index * n, n, &mut self.values)?;
-                for (pixel, &v) in self.values.iter().enumerate() {
+                for (pixel, (&v, p)) in self.values.iter().zip(frame.iter_mut()).enumerate() {
                     if v.is_nan() {
                         return Err(pixel_error(
                             &self.path,
@@ -526,26 +539,41 @@ impl FrameSource {
                         };
                         return Err(pixel_error(&self.path, index, shape.width, pixel, problem));
                     }
-                    out.push(v as u16);
+                    *p = v as u16;
                 }
             }
         } else if let Some(all) = &self.layout.preloaded {
-            out.extend_from_slice(&all[first * n..(first + count) * n]);
+            out.copy_from_slice(&all[first * n..(first + count) * n]);
         } else {
             let encoding = self.layout.encoding;
             let offset = self.layout.data_offset + (first * n * encoding.bytes_per_pixel()) as u64;
             self.file
                 .seek(SeekFrom::Start(offset))
-                .map_err(|e| IoError::io(&self.path, e))?;
-            read_pixels(&mut self.file, encoding, count * n, out, &mut self.buffer)
+                .and_then(|_| read_pixels(&mut self.file, encoding, out, &mut self.buffer))
                 .map_err(|e| IoError::io(&self.path, e))?;
         }
         if let Some(camera) = &self.camera {
-            for (k, frame) in out[start..].chunks_exact(n.max(1)).enumerate() {
+            for (k, frame) in out.chunks_exact(n).enumerate() {
                 check_frame(&self.path, first + k, shape.width, frame, camera)?;
             }
         }
         Ok(())
+    }
+
+    /// `first .. first + count` are frames of the file.
+    fn check_range(&self, first: usize, count: usize) -> Result<(), IoError> {
+        let frames = self.layout.shape.frames;
+        if first.checked_add(count).is_some_and(|end| end <= frames) {
+            return Ok(());
+        }
+        Err(IoError::unexpected(
+            &self.path,
+            format!(
+                "a request for frame {}",
+                first.saturating_add(count.max(1) - 1)
+            ),
+            format!("a frame index below {frames}"),
+        ))
     }
 
     /// Reads frame `index` (0-based).
@@ -726,37 +754,32 @@ fn pixel_error(
     }
 }
 
-/// Reads `count` pixels of `encoding` from `file` and appends them to `out`:
-/// 16-bit pixels straight into `out`'s memory (then put in the machine's
-/// byte order in place), 8-bit ones through `buffer`.
+/// Reads `out.len()` pixels of `encoding` from `file` into `out`: 16-bit
+/// pixels straight into `out`'s memory (then put in the machine's byte
+/// order in place), 8-bit ones through `buffer`.
 fn read_pixels(
     file: &mut File,
     encoding: Encoding,
-    count: usize,
-    out: &mut Vec<u16>,
+    out: &mut [u16],
     buffer: &mut Vec<u8>,
 ) -> std::io::Result<()> {
-    let start = out.len();
     match encoding {
         Encoding::U8 => {
-            buffer.resize(count, 0);
+            buffer.resize(out.len(), 0);
             file.read_exact(buffer)?;
-            out.extend(buffer.iter().map(|&b| b as u16));
+            for (p, &b) in out.iter_mut().zip(buffer.iter()) {
+                *p = b as u16;
+            }
         }
         Encoding::U16 { big_endian } => {
-            out.resize(start + count, 0);
-            let tail = &mut out[start..];
-            // SAFETY: `tail` is `2 count` initialised bytes, and any bytes
-            // are a valid u16.
+            // SAFETY: `out` is `2 len` initialised bytes, and any bytes are
+            // a valid u16.
             let bytes = unsafe {
-                std::slice::from_raw_parts_mut(tail.as_mut_ptr() as *mut u8, 2 * tail.len())
+                std::slice::from_raw_parts_mut(out.as_mut_ptr() as *mut u8, 2 * out.len())
             };
-            if let Err(e) = file.read_exact(bytes) {
-                out.truncate(start);
-                return Err(e);
-            }
+            file.read_exact(bytes)?;
             if big_endian != cfg!(target_endian = "big") {
-                for v in tail.iter_mut() {
+                for v in out.iter_mut() {
                     *v = v.swap_bytes();
                 }
             }
@@ -943,6 +966,13 @@ mod tests {
                 assert!(none.is_empty());
                 let err = source.read_frames_into(2, 3, &mut out).unwrap_err();
                 assert!(err.to_string().contains("frame 4"), "{err}");
+                assert_eq!(out, expected, "a failed read leaves `out` as it was");
+                // Into a buffer of whole frames, over what it held.
+                let mut buffer = vec![9u16; 2 * 15];
+                source.read_frames_to(2, &mut buffer).unwrap();
+                assert_eq!(buffer, expected[1 + 15..]);
+                let err = source.read_frames_to(0, &mut buffer[..7]).unwrap_err();
+                assert!(err.to_string().contains("whole frames of 15"), "{err}");
             }
         }
         // The camera check names the frame within the run.

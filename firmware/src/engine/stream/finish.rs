@@ -1,5 +1,6 @@
 //! A window's end: the cutoff among its candidates (or, when the seed was
-//! too high, among all its pixels again from the row history), the level
+//! too high, among all its pixels again from the row history or the whole
+//! frame the caller holds), the level
 //! filter and seed updated, the moments and the sub-aperture's result.
 
 use super::admission::settle_at_hint;
@@ -93,13 +94,23 @@ impl Engine<'_, '_> {
                     let w = window.width as usize;
                     for j in 0..window.height as usize {
                         let y = window.y as usize + j;
-                        let at = (y % self.history_rows) * width + window.x as usize;
+                        let pixel = y * width + window.x as usize;
+                        let raw = if self.whole_frame != 0 {
+                            // SAFETY: the frame is whole in the slice of the
+                            // current call to `push` (`whole_frame`), and the
+                            // window lies in it.
+                            unsafe {
+                                core::slice::from_raw_parts(
+                                    (self.whole_frame as *const u16).add(pixel),
+                                    w,
+                                )
+                            }
+                        } else {
+                            let at = (y % self.history_rows) * width + window.x as usize;
+                            &memory.history[at..at + w]
+                        };
                         let row = &mut self.calibrated[..w];
-                        self.calibrator.calibrate(
-                            &memory.history[at..at + w],
-                            y * width + window.x as usize,
-                            row,
-                        );
+                        self.calibrator.calibrate(raw, pixel, row);
                         for (i, (e, &p)) in all[j * w..(j + 1) * w]
                             .iter_mut()
                             .zip(row.iter())

@@ -111,6 +111,13 @@ pub struct Engine<'c, 'm> {
     /// Where the current row starts in the history ring
     /// (`(row % history_rows) * width`).
     history_row: usize,
+    /// While a frame that arrived whole in one call to [`Engine::push`] is
+    /// processed (only then), the address of its first pixel: a rescan
+    /// reads its rows there, so none is copied to the history ring.
+    whole_frame: usize,
+    /// The rows of the history ring the current frame is copied to:
+    /// `history_rows`, or 0 while `whole_frame` is set.
+    ring_rows: usize,
     max_raw: u16,
     row: u16,
     column: u16,
@@ -188,6 +195,8 @@ impl<'c, 'm> Engine<'c, 'm> {
             stride: plan.stride,
             history_rows: plan.history_rows,
             history_row: 0,
+            whole_frame: 0,
+            ring_rows: 0,
             max_raw: config.camera.max_raw(),
             row: 0,
             column: 0,
@@ -282,7 +291,9 @@ impl<'c, 'm> Engine<'c, 'm> {
     }
 
     /// Feeds the next pixels of the frame, in raster order, in a chunk of any
-    /// length (it may end mid-row or run into the next frame).
+    /// length (it may end mid-row or run into the next frame). A frame that
+    /// is whole in the chunk from its first pixel on is not copied to the
+    /// row history: a window rescanned reads its rows in the chunk.
     pub fn push(&mut self, pixels: &[u16], sink: &mut impl OutputSink) -> Result<(), FrameError> {
         let c = self.config.calibration;
         let check = self.max_raw != u16::MAX;
@@ -325,11 +336,16 @@ impl<'c, 'm> Engine<'c, 'm> {
             // a frame's last pixel is only its results; the other rows open
             // theirs at the end of the row before (`end_row`).
             if self.row == 0 && self.column == 0 && self.next_to_open == 0 {
+                let frame = width as usize * self.config.camera.height as usize;
+                if pixels.len() >= frame {
+                    self.whole_frame = pixels.as_ptr() as usize;
+                    self.ring_rows = 0;
+                }
                 self.open_windows_of_row();
             }
             let take = pixels.len().min((width - self.column) as usize);
             let (part, rest) = pixels.split_at(take);
-            if self.history_rows > 0 {
+            if self.ring_rows > 0 {
                 let at = self.history_row + self.column as usize;
                 // SAFETY: the ring holds `history_rows` camera rows (plan),
                 // `history_row` is one of them and the part lies in it.
@@ -395,7 +411,7 @@ impl<'c, 'm> Engine<'c, 'm> {
             self.scan.gain_row += 2 * width;
         }
         self.position_row += 1 << 6;
-        if self.history_rows > 0 {
+        if self.ring_rows > 0 {
             self.history_row += width;
             if self.history_row == self.history_rows * width {
                 self.history_row = 0;
@@ -431,6 +447,8 @@ impl<'c, 'm> Engine<'c, 'm> {
         self.row = 0;
         self.column = 0;
         self.history_row = 0;
+        self.whole_frame = 0;
+        self.ring_rows = self.history_rows;
         let c = &self.config.calibration;
         self.bg_row = c.background.map_or(0, |b| b.as_ptr() as usize);
         self.scan.gain_row = c.gain.map_or(0, |g| g.as_ptr() as usize);
