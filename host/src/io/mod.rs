@@ -517,6 +517,10 @@ impl FrameSource {
             ));
         }
         self.check_range(first, count)?;
+        if out.is_empty() {
+            // Nothing to read (no frame asked for, or frames of no pixels).
+            return Ok(());
+        }
         if let Some(fits) = &mut self.fits {
             for (k, frame) in out.chunks_exact_mut(n).enumerate() {
                 let index = first + k;
