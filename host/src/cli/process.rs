@@ -59,8 +59,8 @@ pub struct ProcessArgs {
 
 /// Frames are read and processed in batches of about this many pixels (and
 /// at least 64 frames), so a cube of any size streams through in bounded
-/// memory; a batch of 4 MiB stays in the cache between its read and its
-/// processing (16 MiB batches spent ~6% of the time in page faults).
+/// memory; a batch of 4 MiB mostly stays in the cache between its read and
+/// its processing.
 const BATCH_PIXELS: usize = 1 << 21;
 
 pub fn run(args: ProcessArgs) -> Result<()> {
