@@ -116,7 +116,9 @@ pub struct Engine<'c, 'm> {
     /// reads its rows there, so none is copied to the history ring.
     whole_frame: usize,
     /// The rows of the history ring the current frame is copied to:
-    /// `history_rows`, or 0 while `whole_frame` is set.
+    /// `history_rows`, or 0 while `whole_frame` is set. Derivable from the
+    /// two, kept so that a row tests one field (testing both measured 16.22
+    /// against 16.18 instructions a pixel on Cortex-M4).
     ring_rows: usize,
     max_raw: u16,
     row: u16,
