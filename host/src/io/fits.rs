@@ -307,6 +307,31 @@ mod tests {
             "{msg}"
         );
 
+        // SIMPLE = F: not conforming FITS, refused naming the file and the card,
+        // though cfitsio would read it.
+        std::fs::write(
+            &p,
+            raw_fits(
+                &[
+                    ("SIMPLE", "F"),
+                    ("BITPIX", "16"),
+                    ("NAXIS", "2"),
+                    ("NAXIS1", "2"),
+                    ("NAXIS2", "2"),
+                ],
+                &[0u8; 8],
+            ),
+        )
+        .unwrap();
+        let msg = read_array(&p).unwrap_err().to_string();
+        assert!(
+            msg.contains("f.fits")
+                && msg.contains("SIMPLE  =                    F")
+                && msg.contains("does not conform"),
+            "{msg}"
+        );
+        assert!(FrameSource::open(&p).is_err());
+
         std::fs::write(&p, b"\x93NUMPY not a fits file").unwrap();
         let msg = read_array(&p).unwrap_err().to_string();
         assert!(msg.contains("not a readable FITS file"), "{msg}");

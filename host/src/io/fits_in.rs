@@ -48,6 +48,43 @@ fn inventory(file: &mut FitsFile) -> String {
     lines.join("; ")
 }
 
+/// Refuses a file whose first card is `SIMPLE = F`: the standard's mark of
+/// a file that does not conform to FITS, which cfitsio would read as if it
+/// did. Anything else (a file too short, another first keyword) is left to
+/// cfitsio, which names what it finds wrong.
+fn check_conforming(path: &Path) -> Result<(), IoError> {
+    use std::io::Read;
+    let mut card = [0u8; 80];
+    let mut file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
+    let mut filled = 0;
+    while filled < card.len() {
+        match file.read(&mut card[filled..]) {
+            Ok(0) => break,
+            Ok(n) => filled += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(IoError::io(path, e)),
+        }
+    }
+    let card = &card[..filled];
+    // Keyword in columns 1-8, "= " in 9-10, the logical value in 11-80
+    // (fixed format: column 30) before any comment.
+    if card.len() < 11 || &card[..10] != b"SIMPLE  = " {
+        return Ok(());
+    }
+    let value = card[10..].split(|&b| b == b'/').next().unwrap_or_default();
+    if value.trim_ascii() == b"F" {
+        return Err(IoError::unexpected(
+            path,
+            format!(
+                "a first card that says the file does not conform to the FITS standard: '{}'",
+                String::from_utf8_lossy(card).trim_end()
+            ),
+            "a FITS file (SIMPLE = T)",
+        ));
+    }
+    Ok(())
+}
+
 /// Opens `path` at the HDU named by `hdu` (an index, 0 the primary, or an
 /// `EXTNAME`), or else at the first HDU holding an image with data.
 pub(crate) fn open_image(path: &Path, hdu: Option<&str>) -> Result<FitsImage, IoError> {
@@ -57,6 +94,7 @@ pub(crate) fn open_image(path: &Path, hdu: Option<&str>) -> Result<FitsImage, Io
             std::io::Error::from(std::io::ErrorKind::NotFound),
         ));
     }
+    check_conforming(path)?;
     let mut file =
         FitsFile::open(path).map_err(|e| cfitsio(path, "not a readable FITS file", e))?;
     let count = file
