@@ -16,6 +16,7 @@ one ``brightpix.process`` call per machine-sized piece with the filter off.
 
 from __future__ import annotations
 
+import pickle
 from typing import NamedTuple
 
 import numpy as np
@@ -45,8 +46,16 @@ class DaskResult(NamedTuple):
         return DaskResult(*dask.compute(*self, **kwargs))
 
 
-def _block(frames: np.ndarray, config: Config) -> np.ndarray:
-    """One chunk of frames -> a structured (F, S) array of every output."""
+def _block(frames: np.ndarray, config_bytes: bytes) -> np.ndarray:
+    """One chunk of frames -> a structured (F, S) array of every output.
+
+    The configuration arrives as pickled bytes and is rebuilt here, inside
+    the task: a failure to rebuild it is then the task's exception, which
+    the scheduler hands to the caller, rather than a failure to deserialize
+    the task, which kills the worker (and dask.distributed restarts it and
+    retries, without end). Bytes also travel in-band: no out-of-band buffer
+    (which may arrive at any alignment) is involved."""
+    config = pickle.loads(config_bytes)
     result = _process(frames, config)
     out = np.empty(result.flux.shape, dtype=_RECORD)
     for axis, name in enumerate("xy"):
@@ -117,9 +126,11 @@ def process(array: object, config: Config) -> DaskResult:
             "array.rechunk({1: -1, 2: -1})"
         )
     s = config.n_subapertures
+    # Protocol 4: every buffer in-band, in the one bytes object.
+    config_bytes = pickle.dumps(config, protocol=4)
     records = array.map_blocks(
         _block,
-        config,
+        config_bytes,
         dtype=_RECORD,
         chunks=(array.chunks[0], (s,)),
         drop_axis=2,

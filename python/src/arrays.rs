@@ -39,7 +39,7 @@ fn type_name(obj: &Bound<'_, PyAny>) -> String {
 /// `obj` as frames of `camera`: a numpy uint8 or uint16 array of shape
 /// `(H, W)` or `(F, H, W)`. Anything else is a `TypeError` (dtype) or a
 /// `ValueError` (shape) naming `what`. Copies only when the array is not
-/// already C-contiguous native uint16.
+/// already C-contiguous, aligned, native uint16.
 pub fn frames<'py>(obj: &Bound<'py, PyAny>, camera: &Camera, what: &str) -> PyResult<Frames<'py>> {
     let Ok(array) = obj.cast::<PyUntypedArray>() else {
         return Err(PyTypeError::new_err(format!(
@@ -89,14 +89,18 @@ pub fn frames<'py>(obj: &Bound<'py, PyAny>, camera: &Camera, what: &str) -> PyRe
     })
 }
 
-/// `numpy.asarray(obj, dtype=numpy.<dtype>, order="C")`: C-contiguous,
-/// native byte order, dimensions kept (a 0-d array stays 0-d).
+/// `numpy.require(obj, dtype=numpy.<dtype>, requirements="CA")`:
+/// C-contiguous, aligned, native byte order, dimensions kept (a 0-d array
+/// stays 0-d). Copies only when `obj` is not already so. Aligned matters:
+/// arrays that crossed a process boundary (pickle protocol 5's out-of-band
+/// buffers, as dask.distributed hands them over) may start at any byte, and
+/// `numpy.asarray` keeps such an array as it is.
 fn as_c_array<'py>(obj: &Bound<'py, PyAny>, dtype: &str) -> PyResult<Bound<'py, PyAny>> {
     let numpy = obj.py().import("numpy")?;
     let kwargs = PyDict::new(obj.py());
     kwargs.set_item("dtype", numpy.getattr(dtype)?)?;
-    kwargs.set_item("order", "C")?;
-    numpy.call_method("asarray", (obj,), Some(&kwargs))
+    kwargs.set_item("requirements", "CA")?;
+    numpy.call_method("require", (obj,), Some(&kwargs))
 }
 
 /// `(3, 4)`, as numpy prints shapes.
@@ -123,20 +127,27 @@ pub fn float_values(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<ArrayValues>
             "{what} must be a number or an array of numbers, not a string"
         )));
     }
-    let converted = as_c_array(obj, "float64").map_err(|e| {
+    let (shape, values) = values::<f64>(obj, "float64").map_err(|e| {
         PyTypeError::new_err(format!(
             "{what} must be a number or an array of numbers ({})",
             e.value(py)
         ))
     })?;
+    Ok(ArrayValues::new(shape, values))
+}
+
+/// Any array-like as `numpy.<dtype>` values (`T` its element), in C order,
+/// with its shape; copied from whatever buffer holds them.
+pub fn values<T: Element + Copy>(
+    obj: &Bound<'_, PyAny>,
+    dtype: &str,
+) -> PyResult<(Vec<usize>, Vec<T>)> {
+    let converted = as_c_array(obj, dtype)?;
     let array = converted
-        .cast::<PyArrayDyn<f64>>()
+        .cast::<PyArrayDyn<T>>()
         .map_err(PyErr::from)?
         .readonly();
-    Ok(ArrayValues::new(
-        array.shape().to_vec(),
-        array.as_slice()?.to_vec(),
-    ))
+    Ok((array.shape().to_vec(), array.as_slice()?.to_vec()))
 }
 
 /// `data` as a numpy array of `shape`.

@@ -23,6 +23,7 @@ fn _brightpix(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<config::PyConfig>()?;
     m.add_function(wrap_pyfunction!(config::_config_from_keywords, m)?)?;
     m.add_class::<process::PyResultSet>()?;
+    m.add_function(wrap_pyfunction!(process::_result_from_arrays, m)?)?;
     m.add_function(wrap_pyfunction!(process::process, m)?)?;
     m.add_function(wrap_pyfunction!(process::centroid, m)?)?;
     m.add_class::<device::PyDevice>()?;

@@ -214,6 +214,41 @@ impl PyResultSet {
         self.frames
     }
 
+    /// Pickling (a result returned from a Dask or multiprocessing worker):
+    /// the engine's integers and the configuration; the float slopes are
+    /// derived from them again.
+    #[allow(clippy::type_complexity)]
+    fn __reduce__<'py>(
+        slf: &Bound<'py, Self>,
+    ) -> PyResult<(
+        Bound<'py, PyAny>,
+        (
+            Py<PyAny>,
+            Py<PyAny>,
+            Py<PyAny>,
+            Py<PyAny>,
+            &'static str,
+            Py<PyConfig>,
+        ),
+    )> {
+        let py = slf.py();
+        let r = slf.get();
+        let rebuild = py
+            .import("brightpix._brightpix")?
+            .getattr("_result_from_arrays")?;
+        Ok((
+            rebuild,
+            (
+                r.slopes_q16.clone_ref(py),
+                r.flux.clone_ref(py),
+                r.valid.clone_ref(py),
+                r.received.clone_ref(py),
+                r.source,
+                r.config.clone_ref(py),
+            ),
+        ))
+    }
+
     /// Write slopes, flux, validity and provenance as ``brightpix process
     /// --out`` does, with the same writers, in the format of ``path``'s
     /// extension (docs/OUTPUTS.md):
@@ -266,8 +301,10 @@ impl PyResultSet {
 ///
 /// ``frames``: a numpy ``uint8`` or ``uint16`` array of counts, ``(H, W)``
 /// or ``(F, H, W)``, in any memory order and byte order (FITS data from
-/// astropy, big-endian, is fine; it is copied only when not C-contiguous
-/// native uint16). Raw values must be below ``2**config.bit_depth``.
+/// astropy, big-endian, is fine; so is a read-only or misaligned buffer, as
+/// arrays arrive from another process: it is copied only when not
+/// C-contiguous, aligned, native uint16). Raw values must be below
+/// ``2**config.bit_depth``.
 ///
 /// ``reference=True`` uses the independent reference implementation (a
 /// full sort per sub-aperture) instead of the streaming engine; the
@@ -387,4 +424,46 @@ pub fn centroid<'py>(
         .collect();
     let out_shape: &[usize] = if block.single { &[2] } else { &[count, 2] };
     to_numpy(py, slopes, out_shape)
+}
+
+/// `Result` from its pickled arrays (`Result.__reduce__`), from any buffer
+/// (misaligned, read-only: copied).
+#[pyfunction]
+pub fn _result_from_arrays(
+    py: Python<'_>,
+    slopes_q16: &Bound<'_, PyAny>,
+    flux: &Bound<'_, PyAny>,
+    valid: &Bound<'_, PyAny>,
+    received: &Bound<'_, PyAny>,
+    source: &str,
+    config: Py<PyConfig>,
+) -> PyResult<PyResultSet> {
+    let source = ["engine", "reference", "device"]
+        .into_iter()
+        .find(|&s| s == source)
+        .ok_or_else(|| PyValueError::new_err(format!("result source {source:?}")))?;
+    let (shape, q16) = crate::arrays::values::<i32>(slopes_q16, "int32")?;
+    let (lead, flux) = crate::arrays::values::<i64>(flux, "int64")?;
+    let (valid_shape, valid) = crate::arrays::values::<bool>(valid, "bool")?;
+    let (received_shape, received) = crate::arrays::values::<bool>(received, "bool")?;
+    let single = lead.len() == 1;
+    let (frames, subapertures) = match lead[..] {
+        [s] => (1, s),
+        [f, s] => (f, s),
+        _ => return Err(PyValueError::new_err("result arrays of an unknown shape")),
+    };
+    if shape != [lead.as_slice(), &[2]].concat() || valid_shape != lead || received_shape != lead {
+        return Err(PyValueError::new_err(
+            "result arrays of inconsistent shapes",
+        ));
+    }
+    let outputs = Outputs {
+        frames,
+        subapertures,
+        slopes: q16.chunks_exact(2).map(|xy| [xy[0], xy[1]]).collect(),
+        flux,
+        valid,
+        received,
+    };
+    PyResultSet::new(py, outputs, config, source, single)
 }

@@ -80,3 +80,105 @@ def test_refusals() -> None:
         brightpix.dask.process(array[:, :16], c)
     with pytest.raises(TypeError, match="dask.array.Array"):
         brightpix.dask.process(frames(2), c)
+
+
+def _misaligned(data: bytes) -> memoryview:
+    """``data`` in a read-only buffer that starts one byte past an aligned address."""
+    block = bytearray(len(data) + 1)
+    block[1:] = data
+    return memoryview(bytes(block))[1:]
+
+
+def _toml_config(directory) -> brightpix.Config:
+    """A configuration loaded from TOML, as a user writes it, with background and flat maps."""
+    rng = np.random.default_rng(9)
+    np.save(directory / "background.npy", rng.uniform(18.0, 22.0, (32, 48)))
+    np.save(directory / "flat.npy", rng.uniform(0.8, 1.2, (32, 48)))
+    (directory / "wfs.toml").write_text(
+        """
+[camera]
+width = 48
+height = 32
+bit_depth = 12
+
+[subapertures.grid]
+x = 0
+y = 0
+columns = 3
+rows = 2
+width = 16
+height = 16
+
+[calibration]
+background = "background.npy"
+flat = "flat.npy"
+
+[selection]
+rule = "subtract-next"
+pixels = 20
+
+[centroid]
+min_flux_counts = 30.0
+"""
+    )
+    return brightpix.Config.load(str(directory / "wfs.toml"))
+
+
+def test_objects_unpickle_from_any_buffer(tmp_path) -> None:
+    """Protocol 5 hands arrays over out of band; dask.distributed gives them back at any
+    alignment. Configurations, results and frames must work from such buffers."""
+    import pickle
+
+    c = _toml_config(tmp_path)
+    data = frames(40)
+    expected = brightpix.process(data, c)
+    for obj in (c, expected):
+        buffers: list = []
+        payload = pickle.dumps(obj, protocol=5, buffer_callback=buffers.append)
+        assert buffers, "nothing went out of band: this test would not test alignment"
+        misaligned = [_misaligned(bytes(b.raw())) for b in buffers]
+        back = pickle.loads(payload, buffers=misaligned)
+        if obj is c:
+            assert back == c
+            assert (
+                brightpix.process(data, back).slopes_q16.tobytes() == expected.slopes_q16.tobytes()
+            )
+        else:
+            for name in ("slopes", "slopes_q16", "flux", "valid", "received"):
+                assert np.array_equal(getattr(back, name), getattr(obj, name)), name
+            assert back.source == "engine" and back.config == c
+    # Frames: misaligned and read-only, and not contiguous.
+    odd = np.frombuffer(_misaligned(data.tobytes()), dtype=np.uint16).reshape(data.shape)
+    assert not odd.flags.aligned and not odd.flags.writeable
+    assert np.array_equal(brightpix.process(odd, c).slopes_q16, expected.slopes_q16)
+    strided = np.repeat(data, 2, axis=2)[:, :, ::2]
+    assert not strided.flags.c_contiguous
+    assert np.array_equal(brightpix.process(strided, c).slopes_q16, expected.slopes_q16)
+
+
+def test_local_cluster_with_toml_configuration(tmp_path) -> None:
+    """As the issue's user ran it: Config.load, worker processes, maps in the configuration;
+    and a failure inside a worker reaches the caller as an exception, not a restart loop."""
+    c = _toml_config(tmp_path)
+    data = frames(600)
+    expected = brightpix.process(data, c)
+    bad = data.copy()
+    bad[450, 3, 4] = 4096  # above the 12-bit range, in the fourth chunk
+    with (
+        distributed.LocalCluster(
+            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+        ) as cluster,
+        distributed.Client(cluster) as client,
+    ):
+        lazy = brightpix.dask.process(da.from_array(data, chunks=(150, 32, 48)), c)
+        result = [f.result(timeout=300) for f in client.compute(list(lazy))]
+        for got, want in zip(
+            result, (expected.slopes, expected.slopes_q16, expected.flux, expected.valid)
+        ):
+            assert np.array_equal(got, want)
+        # Results and configurations also cross the boundary whole.
+        shipped = client.submit(brightpix.process, data[:100], c).result(timeout=300)
+        assert np.array_equal(shipped.slopes_q16, expected.slopes_q16[:100])
+        failing = brightpix.dask.process(da.from_array(bad, chunks=(150, 32, 48)), c)
+        with pytest.raises(ValueError, match="4096"):
+            client.compute(failing.slopes).result(timeout=300)
