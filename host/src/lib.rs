@@ -9,6 +9,7 @@ pub mod io;
 pub mod link;
 pub mod parallel;
 pub mod reference;
+pub mod rig;
 pub mod sil;
 pub mod sim_device;
 pub mod simulator;

@@ -113,6 +113,9 @@ pub struct Provenance {
     pub frames_source: Option<String>,
     /// Index of the first frame written, in the source.
     pub first_frame: u64,
+    /// For a rig's merged results: which board computed which
+    /// sub-apertures (`board-0 0-20; board-1 21-34; ...`).
+    pub rig: Option<String>,
 }
 
 impl Provenance {
@@ -143,6 +146,7 @@ impl Provenance {
             bit_depth: Some(config.camera.bit_depth),
             frames_source: None,
             first_frame: 0,
+            rig: None,
         }
     }
 
@@ -162,6 +166,7 @@ impl Provenance {
             bit_depth: None,
             frames_source: None,
             first_frame: 0,
+            rig: None,
         }
     }
 
@@ -230,6 +235,11 @@ impl Provenance {
                 "BPSOURCE",
                 self.frames_source.clone().map(Value::Text),
                 "frames from",
+            ),
+            (
+                "BPRIG",
+                self.rig.clone().map(Value::Text),
+                "rig: board and its sub-apertures",
             ),
             (
                 "BPFIRST",

@@ -1,0 +1,432 @@
+//! `rig.toml`: a rig as a file people can read and edit: the whole
+//! camera's configuration, the board kind, and per board its name, port,
+//! rectangle and sub-apertures. Loading it checks everything a wrong edit
+//! can break (a window on no board or on two, a window outside its board's
+//! rectangle, a rectangle the board cannot crop, two boards on one port)
+//! before any device is touched.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use super::part::{board_config, Rectangle};
+use super::plan::{BoardKind, BoardLoad, Plan};
+use crate::config_file::ProcessingConfig;
+
+/// One board of a loaded rig.
+#[derive(Clone, Debug)]
+pub struct RigBoard {
+    pub name: String,
+    /// Its serial port, when the file gives one.
+    pub port: Option<String>,
+    pub rectangle: Rectangle,
+    /// Whole-camera window indices, in the board's output order.
+    pub windows: Vec<usize>,
+    /// The board's own configuration: its camera is the rectangle.
+    pub config: ProcessingConfig,
+}
+
+/// A loaded, checked rig.
+#[derive(Clone, Debug)]
+pub struct Rig {
+    /// The whole camera's configuration.
+    pub whole: ProcessingConfig,
+    /// Its file, as the rig names it (resolved against the rig's directory).
+    pub config_file: Option<PathBuf>,
+    pub kind: BoardKind,
+    pub camera_rate_hz: Option<f64>,
+    pub boards: Vec<RigBoard>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RigToml {
+    config: PathBuf,
+    board: String,
+    camera_rate_hz: Option<f64>,
+    #[serde(default)]
+    boards: Vec<BoardToml>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BoardToml {
+    name: String,
+    port: Option<String>,
+    rectangle: Rectangle,
+    subapertures: Vec<usize>,
+}
+
+/// Why a rig file was refused; the message names the file.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: {message}", file.display())]
+pub struct RigError {
+    pub file: PathBuf,
+    pub message: String,
+}
+
+impl Rig {
+    /// Loads `path`, its whole-camera configuration (relative to the rig's
+    /// directory) and checks the split.
+    pub fn load(path: &Path) -> Result<Rig, RigError> {
+        let fail = |message: String| RigError {
+            file: path.to_path_buf(),
+            message,
+        };
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| fail(format!("cannot read the rig file: {e}")))?;
+        let file: RigToml =
+            toml::from_str(&text).map_err(|e| fail(format!("not a rig file: {e}")))?;
+        let config_path = path.parent().unwrap_or(Path::new(".")).join(&file.config);
+        let whole = ProcessingConfig::load(&config_path)
+            .map_err(|e| fail(format!("its configuration: {e}")))?;
+        let kind = BoardKind::parse(&file.board).map_err(|e| fail(format!("board: {e}")))?;
+        let boards = file
+            .boards
+            .into_iter()
+            .map(|b| (b.name, b.port, b.rectangle, b.subapertures))
+            .collect();
+        let mut rig = Rig::from_parts(whole, kind, file.camera_rate_hz, boards).map_err(fail)?;
+        rig.config_file = Some(config_path);
+        Ok(rig)
+    }
+
+    /// The rig of `plan`'s shares of `whole`, boards named `board-K`, no ports.
+    pub fn from_plan(
+        whole: ProcessingConfig,
+        kind: BoardKind,
+        camera_rate_hz: Option<f64>,
+        plan: &Plan,
+    ) -> Result<Rig, String> {
+        let boards = plan
+            .shares
+            .iter()
+            .enumerate()
+            .map(|(k, s)| (format!("board-{k}"), None, s.rectangle, s.windows.clone()))
+            .collect();
+        Rig::from_parts(whole, kind, camera_rate_hz, boards)
+    }
+
+    /// Checks a split and derives each board's configuration.
+    #[allow(clippy::type_complexity)]
+    pub fn from_parts(
+        whole: ProcessingConfig,
+        kind: BoardKind,
+        camera_rate_hz: Option<f64>,
+        boards: Vec<(String, Option<String>, Rectangle, Vec<usize>)>,
+    ) -> Result<Rig, String> {
+        if boards.is_empty() {
+            return Err("no [[boards]]: a rig needs at least one".into());
+        }
+        if let Some(rate) = camera_rate_hz.filter(|r| !(r.is_finite() && *r > 0.0)) {
+            return Err(format!(
+                "camera_rate_hz = {rate}: must be a positive number"
+            ));
+        }
+        let count = whole.windows.len();
+        let mut owner: Vec<Option<&str>> = vec![None; count];
+        let mut names = BTreeSet::new();
+        let mut ports = BTreeMap::new();
+        for (name, port, rect, windows) in &boards {
+            if !names.insert(name.as_str()) {
+                return Err(format!("two boards are named {name:?}"));
+            }
+            if let Some(port) = port {
+                if let Some(other) = ports.insert(port.as_str(), name.as_str()) {
+                    return Err(format!(
+                        "boards {other:?} and {name:?} are both on port {port}: each board needs its own"
+                    ));
+                }
+            }
+            if !rect.inside(&whole.camera) {
+                return Err(format!(
+                    "board {name:?}: rectangle {} is not inside the {}x{} camera",
+                    rect.describe(),
+                    whole.camera.width,
+                    whole.camera.height
+                ));
+            }
+            kind.check_crop(rect, whole.camera.bit_depth)
+                .map_err(|e| format!("board {name:?}: rectangle {}: {e}", rect.describe()))?;
+            if windows.is_empty() {
+                return Err(format!("board {name:?} has no sub-apertures"));
+            }
+            for &k in windows {
+                let Some(slot) = owner.get_mut(k) else {
+                    return Err(format!(
+                        "board {name:?}: sub-aperture {k} does not exist (the configuration has {count}, 0..{})",
+                        count.saturating_sub(1)
+                    ));
+                };
+                if let Some(first) = slot {
+                    return Err(if *first == name.as_str() {
+                        format!("board {name:?} lists sub-aperture {k} twice")
+                    } else {
+                        format!("sub-aperture {k} is on two boards, {first:?} and {name:?}: give it to one")
+                    });
+                }
+                *slot = Some(name.as_str());
+                let w = whole.windows[k];
+                if !rect.holds(&w) {
+                    return Err(format!(
+                        "board {name:?}: sub-aperture {k} ({}x{} at ({}, {})) is not inside its rectangle {}",
+                        w.width,
+                        w.height,
+                        w.x,
+                        w.y,
+                        rect.describe()
+                    ));
+                }
+            }
+        }
+        let orphans: Vec<usize> = (0..count).filter(|&k| owner[k].is_none()).collect();
+        if !orphans.is_empty() {
+            return Err(format!(
+                "sub-aperture{} {} on no board: every sub-aperture must be on exactly one",
+                if orphans.len() > 1 { "s" } else { "" },
+                ranges(&orphans)
+            ));
+        }
+        let boards = boards
+            .into_iter()
+            .map(|(name, port, rectangle, windows)| {
+                let config = board_config(&whole, &rectangle, &windows);
+                config
+                    .validate()
+                    .map_err(|e| format!("board {name:?}: its configuration: {e}"))?;
+                Ok(RigBoard {
+                    name,
+                    port,
+                    rectangle,
+                    windows,
+                    config,
+                })
+            })
+            .collect::<Result<Vec<_>, String>>()?;
+        Ok(Rig {
+            whole,
+            config_file: None,
+            kind,
+            camera_rate_hz,
+            boards,
+        })
+    }
+
+    /// Which board computes each whole-camera sub-aperture.
+    pub fn board_of(&self) -> Vec<usize> {
+        let mut out = vec![0; self.whole.windows.len()];
+        for (b, board) in self.boards.iter().enumerate() {
+            for &k in &board.windows {
+                out[k] = b;
+            }
+        }
+        out
+    }
+
+    /// One line of provenance: the boards and their sub-apertures.
+    pub fn describe(&self) -> String {
+        self.boards
+            .iter()
+            .map(|b| {
+                let mut sorted = b.windows.clone();
+                sorted.sort_unstable();
+                format!("{} {}", b.name, ranges(&sorted))
+            })
+            .collect::<Vec<_>>()
+            .join("; ")
+    }
+
+    /// The rig as `rig.toml` text; `config` is how the file names the whole
+    /// configuration; `loads` (one per board) go into comments.
+    pub fn to_toml(&self, config: &Path, loads: Option<&[BoardLoad]>) -> String {
+        let mut out = String::new();
+        let _ = writeln!(
+            out,
+            "# brightpix rig: one camera's sub-apertures split over {} boards.\n\
+             # Edit freely: `brightpix rig` refuses a sub-aperture on no board or on two,\n\
+             # one outside its board's rectangle, a rectangle the board cannot crop, and\n\
+             # two boards on one port. Rectangles are in camera pixels.",
+            self.boards.len()
+        );
+        let _ = writeln!(out, "config = {:?}", config.display().to_string());
+        let _ = writeln!(out, "board = {:?}", self.kind.name());
+        if let Some(rate) = self.camera_rate_hz {
+            let _ = writeln!(out, "camera_rate_hz = {rate}");
+        }
+        for (k, b) in self.boards.iter().enumerate() {
+            let _ = writeln!(out, "\n[[boards]]");
+            if let Some(load) = loads.and_then(|l| l.get(k)) {
+                let _ = writeln!(out, "# {}", describe_load(load, b));
+            }
+            let _ = writeln!(out, "name = {:?}", b.name);
+            if let Some(port) = &b.port {
+                let _ = writeln!(out, "port = {port:?}");
+            }
+            let r = b.rectangle;
+            let _ = writeln!(
+                out,
+                "rectangle = {{ x = {}, y = {}, width = {}, height = {} }}",
+                r.x, r.y, r.width, r.height
+            );
+            let list: Vec<String> = b.windows.iter().map(usize::to_string).collect();
+            let _ = writeln!(out, "subapertures = [{}]", list.join(", "));
+        }
+        out
+    }
+}
+
+/// A board's predicted load, for the plan's table and the file's comments.
+pub fn describe_load(load: &BoardLoad, board: &RigBoard) -> String {
+    let mut text = format!(
+        "{} windows, {} pixels ({}): {:.0} instructions a frame, {:.0} after its last pixel",
+        board.windows.len(),
+        board.rectangle.pixels(),
+        board.rectangle.describe(),
+        load.instructions_per_frame,
+        load.last_row_instructions
+    );
+    if let Some(l) = load.load {
+        let _ = write!(
+            text,
+            "; load {:.0}% (headroom {:.0}%)",
+            l * 100.0,
+            (1.0 - l) * 100.0
+        );
+    }
+    if let Some(b) = load.result_bytes_per_s {
+        let _ = write!(text, "; results <= {:.2} MB/s", b / 1e6);
+    }
+    text
+}
+
+/// `0-20, 24, 30-31`.
+fn ranges(sorted: &[usize]) -> String {
+    let mut parts = Vec::new();
+    let mut k = 0;
+    while k < sorted.len() {
+        let start = sorted[k];
+        while k + 1 < sorted.len() && sorted[k + 1] == sorted[k] + 1 {
+            k += 1;
+        }
+        parts.push(if sorted[k] == start {
+            start.to_string()
+        } else {
+            format!("{start}-{}", sorted[k])
+        });
+        k += 1;
+    }
+    parts.join(", ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rig::plan::{plan, CostModel};
+
+    fn write_rig(dir: &Path, boards: &str) -> PathBuf {
+        let canary = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/canary.toml");
+        std::fs::copy(canary, dir.join("canary.toml")).unwrap();
+        let path = dir.join("rig.toml");
+        std::fs::write(
+            &path,
+            format!("config = \"canary.toml\"\nboard = \"stm32h743\"\n{boards}"),
+        )
+        .unwrap();
+        path
+    }
+
+    fn temp(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("brightpix-rig-{name}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    #[test]
+    fn a_planned_rig_round_trips_through_its_file() {
+        let dir = temp("roundtrip");
+        let whole = crate::sil::canary_config();
+        let p = plan(&whole, 3, BoardKind::Stm32h743, &CostModel::CORTEX_M7).unwrap();
+        let rig = Rig::from_plan(whole, BoardKind::Stm32h743, Some(1000.0), &p).unwrap();
+        let canary = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/canary.toml");
+        std::fs::copy(canary, dir.join("canary.toml")).unwrap();
+        let path = dir.join("rig.toml");
+        std::fs::write(&path, rig.to_toml(Path::new("canary.toml"), None)).unwrap();
+        let back = Rig::load(&path).unwrap();
+        assert_eq!(back.boards.len(), 3);
+        for (a, b) in rig.boards.iter().zip(&back.boards) {
+            assert_eq!(
+                (&a.name, a.rectangle, &a.windows),
+                (&b.name, b.rectangle, &b.windows)
+            );
+            assert_eq!(a.config, b.config);
+        }
+        assert_eq!(back.camera_rate_hz, Some(1000.0));
+    }
+
+    #[test]
+    fn wrong_edits_are_refused() {
+        let dir = temp("edits");
+        let all = |from: usize, to: usize| {
+            (from..to)
+                .map(|k| k.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let board = |name: &str, port: &str, y: u16, h: u16, list: String| {
+            format!(
+                "\n[[boards]]\nname = \"{name}\"\n{port}rectangle = {{ x = 0, y = {y}, width = 112, height = {h} }}\nsubapertures = [{list}]\n"
+            )
+        };
+        let cases = [
+            // 42-48 on no board.
+            (
+                board("a", "", 0, 48, all(0, 21)) + &board("b", "", 48, 48, all(21, 42)),
+                "sub-apertures 42-48 on no board",
+            ),
+            // 20 on two.
+            (
+                board("a", "", 0, 48, all(0, 21)) + &board("b", "", 16, 96, all(20, 49)),
+                "sub-aperture 20 is on two boards, \"a\" and \"b\"",
+            ),
+            // 21 (row 3) outside a's rectangle.
+            (
+                board("a", "", 0, 48, all(0, 22)) + &board("b", "", 48, 64, all(22, 49)),
+                "sub-aperture 21 (16x16 at (0, 48)) is not inside its rectangle",
+            ),
+            (
+                board("a", "port = \"/dev/ttyACM0\"\n", 0, 48, all(0, 21))
+                    + &board("b", "port = \"/dev/ttyACM0\"\n", 48, 64, all(21, 49)),
+                "both on port /dev/ttyACM0",
+            ),
+            (
+                board("a", "", 0, 48, all(0, 21)) + &board("b", "", 48, 70, all(21, 49)),
+                "is not inside the 112x112 camera",
+            ),
+            (String::new(), "no [[boards]]"),
+            (
+                board("a", "", 0, 112, all(0, 49) + ", 49"),
+                "sub-aperture 49 does not exist",
+            ),
+        ];
+        for (boards, expected) in cases {
+            let path = write_rig(&dir, &boards);
+            let e = Rig::load(&path).unwrap_err().to_string();
+            assert!(
+                e.contains(expected) && e.contains("rig.toml"),
+                "{e}\nexpected: {expected}"
+            );
+        }
+        // An odd width on a 16-bit camera: the DCMI crops whole words.
+        let path = write_rig(
+            &dir,
+            &format!(
+                "\n[[boards]]\nname = \"a\"\nrectangle = {{ x = 0, y = 0, width = 111, height = 112 }}\nsubapertures = [{}]\n",
+                all(0, 42)
+            ),
+        );
+        let e = Rig::load(&path).unwrap_err().to_string();
+        assert!(e.contains("multiple of 2"), "{e}");
+    }
+}

@@ -1,0 +1,30 @@
+//! Several boards on one camera: a rig splits a camera's sub-apertures over
+//! boards that each capture a rectangle of the sensor, runs them together
+//! and merges their results into the whole camera's, in the original
+//! sub-aperture order, proved bit for bit against the whole-camera
+//! reference. Host-side orchestration over ordinary devices: each board
+//! runs the unchanged engine on an ordinary configuration whose camera is
+//! its rectangle.
+//!
+//! | module  | holds                                                               |
+//! |---------|---------------------------------------------------------------------|
+//! | `part`  | [`Rectangle`] and a board's configuration cut from the whole camera's |
+//! | `plan`  | board kinds (crop rules, clocks), the bench's cost model, the split |
+//! | `file`  | `rig.toml`: a rig people can read and edit, checked on load        |
+//! | `merge` | the boards' outcomes put together by frame number                   |
+//! | `run`   | configure, stream and verify K devices as one                       |
+
+mod file;
+mod merge;
+mod part;
+mod plan;
+mod run;
+
+pub use file::{describe_load, Rig, RigBoard, RigError};
+pub use merge::{BoardCounts, MergedFrame, Merger};
+pub use part::{board_config, Rectangle};
+pub use plan::{
+    loads, plan, plan_keeping_up, BoardKind, BoardLoad, BoardShare, CostModel, Cut, Plan,
+    PlanError, DCMI_MAX_PIXEL_CLOCK_HZ, SLOPE_ENTRY_MAX_BYTES, USB_FULL_SPEED_BYTES_PER_S,
+};
+pub use run::{check_configurations, configure, stream, BoardRun, RigRun, RigStartError};

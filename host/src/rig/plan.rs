@@ -1,0 +1,633 @@
+//! Splitting one camera's sub-apertures over several boards: the boards
+//! a rig can use (their crop rules and clocks), the cost model that
+//! predicts a board's load from the bench, and the plan itself.
+//!
+//! The plan cuts the sensor into bands of rows between which no window
+//! crosses (columns when rows alone cannot give the boards an even share),
+//! balancing the predicted instructions per frame; each board captures the
+//! bounding rectangle of its windows, widened as its crop hardware needs.
+
+use brightpix_protocol::{Camera, SubapertureWindow};
+
+use super::part::Rectangle;
+use crate::config_file::ProcessingConfig;
+
+/// The USB link of an STM32H743 board without an external PHY: full speed,
+/// 12 Mbit/s on the wire; CDC-ACM bulk transfers carry about 1 MB/s.
+pub const USB_FULL_SPEED_BYTES_PER_S: f64 = 1.0e6;
+
+/// A `SlopeEntry` at its longest on the wire (postcard varints: index 3,
+/// two slopes 5 each, flux 10, valid 1); the usual entry takes about 12.
+pub const SLOPE_ENTRY_MAX_BYTES: usize = 24;
+
+/// The DCMI samples PIXCLK with HCLK and needs its period above 2.5 HCLK
+/// periods: at the H743's 240 MHz HCLK, 96 MHz; ST's datasheet gives 80 MHz
+/// for the 8-bit bus. A board on a fanned-out bus sees every pixel clock of
+/// the camera, whatever it crops.
+pub const DCMI_MAX_PIXEL_CLOCK_HZ: f64 = 80.0e6;
+
+/// Predicted Cortex-M instructions for a board's frame: `per_pixel` for
+/// each pixel it captures plus `per_window` for each window it computes
+/// (opening, attention stops and end), and `last_row_per_window` after the
+/// frame's last pixel for each window of the last window row.
+///
+/// Fitted to the bench (docs/bench/cortex-m*.txt, QEMU -icount, exact):
+/// the CANARY row (112x112, 49 windows of 16x16, N = 20) and the 8x8-window
+/// row (196 windows on the same camera) give two equations in the two
+/// unknowns; the last row is the CANARY row's over its 7 windows. A
+/// configuration unlike these (another N, 32x32 windows, heavy noise) costs
+/// up to ~20% more or less: `brightpix bench --config` measures it, and
+/// `rig plan --instr-per-px` takes that figure instead.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CostModel {
+    pub per_pixel: f64,
+    pub per_window: f64,
+    pub last_row_per_window: f64,
+}
+
+impl CostModel {
+    /// Cortex-M4: CANARY 16.18 instr/px, 8x8 windows 38.70, last row 8,109.
+    pub const CORTEX_M4: CostModel = CostModel::fit(16.18, 38.70, 8109.0);
+    /// Cortex-M7: CANARY 16.01 instr/px, 8x8 windows 38.02, last row 7,863.
+    pub const CORTEX_M7: CostModel = CostModel::fit(16.01, 38.02, 7863.0);
+
+    /// The model through the bench's two rows (see the type's documentation).
+    pub const fn fit(canary: f64, windows_8x8: f64, canary_last_row: f64) -> CostModel {
+        let pixels = 112.0 * 112.0;
+        let per_window = (windows_8x8 - canary) * pixels / (196.0 - 49.0);
+        CostModel {
+            per_pixel: (canary * pixels - 49.0 * per_window) / pixels,
+            per_window,
+            last_row_per_window: canary_last_row / 7.0,
+        }
+    }
+
+    /// A flat `instr_per_px` for every captured pixel (a figure
+    /// `brightpix bench --config` measured for the configuration itself).
+    pub fn flat(instr_per_px: f64, last_row_per_window: f64) -> CostModel {
+        CostModel {
+            per_pixel: instr_per_px,
+            per_window: 0.0,
+            last_row_per_window,
+        }
+    }
+
+    /// Instructions per frame of a board capturing `pixels` and computing
+    /// `windows` windows.
+    pub fn frame_instructions(&self, pixels: usize, windows: usize) -> f64 {
+        self.per_pixel * pixels as f64 + self.per_window * windows as f64
+    }
+}
+
+/// The boards a rig can use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BoardKind {
+    /// The production board: Cortex-M7 at 480 MHz, DCMI crop.
+    Stm32h743,
+    /// The firmware in QEMU (mps2-an386, Cortex-M4): pixels from the host.
+    QemuM4,
+    /// The firmware in QEMU (mps2-an500, Cortex-M7): pixels from the host.
+    QemuM7,
+}
+
+impl BoardKind {
+    pub const ALL: [BoardKind; 3] = [BoardKind::Stm32h743, BoardKind::QemuM4, BoardKind::QemuM7];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            BoardKind::Stm32h743 => "stm32h743",
+            BoardKind::QemuM4 => "qemu-m4",
+            BoardKind::QemuM7 => "qemu-m7",
+        }
+    }
+
+    pub fn parse(text: &str) -> Result<BoardKind, String> {
+        BoardKind::ALL
+            .into_iter()
+            .find(|k| k.name() == text)
+            .ok_or_else(|| {
+                format!("unknown board {text:?}; expected stm32h743, qemu-m4 or qemu-m7")
+            })
+    }
+
+    /// The core's clock, MHz; `None` for an emulated board (no real time).
+    pub fn clock_mhz(self) -> Option<f64> {
+        match self {
+            BoardKind::Stm32h743 => Some(480.0),
+            BoardKind::QemuM4 | BoardKind::QemuM7 => None,
+        }
+    }
+
+    pub fn cost_model(self) -> CostModel {
+        match self {
+            BoardKind::QemuM4 => CostModel::CORTEX_M4,
+            BoardKind::Stm32h743 | BoardKind::QemuM7 => CostModel::CORTEX_M7,
+        }
+    }
+
+    /// Pixels the crop's width must be a multiple of: the DCMI packs the
+    /// captured bytes into 32-bit words and its capture count must give
+    /// whole words (one byte a pixel up to 8 bits, two above). QEMU boards
+    /// take their pixels from the host: any rectangle.
+    pub fn width_multiple(self, bit_depth: u8) -> u16 {
+        match self {
+            BoardKind::Stm32h743 if bit_depth <= 8 => 4,
+            BoardKind::Stm32h743 => 2,
+            BoardKind::QemuM4 | BoardKind::QemuM7 => 1,
+        }
+    }
+
+    /// Why this board cannot capture `rect` of a camera of `bit_depth`, if
+    /// it cannot.
+    pub fn check_crop(self, rect: &Rectangle, bit_depth: u8) -> Result<(), String> {
+        let multiple = self.width_multiple(bit_depth);
+        if rect.width % multiple != 0 {
+            return Err(format!(
+                "the {} crops whole 32-bit words: a {bit_depth}-bit rectangle's width must be a multiple of {multiple} pixels, not {}",
+                self.name(),
+                rect.width
+            ));
+        }
+        // DCMI_CWSTRT/CWSIZE field widths: HOFFCNT and CAPCNT 14 bits (pixel
+        // clocks), VST 13 bits, VLINE 14 bits (lines).
+        if self == BoardKind::Stm32h743
+            && (rect.x >= 1 << 14
+                || rect.width > 1 << 14
+                || rect.y >= 1 << 13
+                || rect.height > 1 << 14)
+        {
+            return Err(format!(
+                "the DCMI crop cannot reach {}: x < 16384, width <= 16384, y < 8192, height <= 16384",
+                rect.describe()
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// One board's share in a plan.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BoardShare {
+    pub rectangle: Rectangle,
+    /// Whole-camera window indices, ascending (the board's output order).
+    pub windows: Vec<usize>,
+}
+
+/// What a board of a plan is predicted to do.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BoardLoad {
+    pub instructions_per_frame: f64,
+    /// Instructions after the frame's last pixel (its last window row).
+    pub last_row_instructions: f64,
+    /// Fraction of the core's cycles at the camera rate (one instruction a
+    /// cycle), when both are known.
+    pub load: Option<f64>,
+    /// Results on the link, bytes per second at the longest encoding.
+    pub result_bytes_per_s: Option<f64>,
+}
+
+/// How the plan cut the sensor.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Cut {
+    Rows,
+    Columns,
+}
+
+/// Boards' shares of one camera.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Plan {
+    pub cut: Cut,
+    pub shares: Vec<BoardShare>,
+}
+
+/// Why a camera cannot be split.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum PlanError {
+    #[error("{0}")]
+    Split(String),
+    #[error("{0}")]
+    TooSlow(String),
+}
+
+/// Window indices grouped into bands along one axis: windows whose spans
+/// overlap share a band, so a cut between bands crosses no window.
+fn bands(windows: &[SubapertureWindow], axis: Cut) -> Vec<Vec<usize>> {
+    let span = |w: &SubapertureWindow| match axis {
+        Cut::Rows => (w.y as u32, w.y as u32 + w.height as u32),
+        Cut::Columns => (w.x as u32, w.x as u32 + w.width as u32),
+    };
+    let mut order: Vec<usize> = (0..windows.len()).collect();
+    order.sort_by_key(|&k| span(&windows[k]));
+    let mut out: Vec<Vec<usize>> = Vec::new();
+    let mut end = 0;
+    for k in order {
+        let (start, stop) = span(&windows[k]);
+        match out.last_mut() {
+            Some(band) if start < end => band.push(k),
+            _ => out.push(vec![k]),
+        }
+        end = end.max(stop);
+    }
+    out
+}
+
+/// The rectangle a board needs for `windows`: their bounding box, widened
+/// to the board's width multiple (to the right, else to the left).
+fn rectangle_for(
+    windows: &[SubapertureWindow],
+    members: &[usize],
+    camera: &Camera,
+    board: BoardKind,
+) -> Result<Rectangle, String> {
+    let x0 = members.iter().map(|&k| windows[k].x).min().unwrap_or(0);
+    let y0 = members.iter().map(|&k| windows[k].y).min().unwrap_or(0);
+    let x1 = members
+        .iter()
+        .map(|&k| windows[k].x + windows[k].width)
+        .max()
+        .unwrap_or(0);
+    let y1 = members
+        .iter()
+        .map(|&k| windows[k].y + windows[k].height)
+        .max()
+        .unwrap_or(0);
+    let multiple = board.width_multiple(camera.bit_depth);
+    let width = (x1 - x0).div_ceil(multiple) * multiple;
+    if width > camera.width {
+        return Err(format!(
+            "the {} needs a width that is a multiple of {multiple} pixels, and the {}-pixel-wide camera holds no such rectangle around windows {}..{} of columns {x0}..{x1}",
+            board.name(),
+            camera.width,
+            members.first().unwrap_or(&0),
+            members.last().unwrap_or(&0)
+        ));
+    }
+    let x = x0.min(camera.width - width);
+    Ok(Rectangle {
+        x,
+        y: y0,
+        width,
+        height: y1 - y0,
+    })
+}
+
+/// The shares of `boards` contiguous groups of `bands` that minimise the
+/// largest predicted cost (dynamic programming over the cut points).
+fn balance(
+    config: &ProcessingConfig,
+    bands: &[Vec<usize>],
+    boards: usize,
+    kind: BoardKind,
+    model: &CostModel,
+) -> Result<Vec<BoardShare>, String> {
+    let n = bands.len();
+    // share(i, j): bands i..j on one board.
+    let share = |i: usize, j: usize| -> Result<(BoardShare, f64), String> {
+        let mut members: Vec<usize> = bands[i..j].iter().flatten().copied().collect();
+        members.sort_unstable();
+        let rectangle = rectangle_for(&config.windows, &members, &config.camera, kind)?;
+        let cost = model.frame_instructions(rectangle.pixels(), members.len());
+        Ok((
+            BoardShare {
+                rectangle,
+                windows: members,
+            },
+            cost,
+        ))
+    };
+    let mut cost = vec![vec![0.0f64; n + 1]; n + 1];
+    for i in 0..n {
+        for j in i + 1..=n {
+            cost[i][j] = share(i, j)?.1;
+        }
+    }
+    // best[b][j]: the least largest cost of bands 0..j on b boards.
+    let mut best = vec![vec![f64::INFINITY; n + 1]; boards + 1];
+    let mut from = vec![vec![0usize; n + 1]; boards + 1];
+    best[0][0] = 0.0;
+    for b in 1..=boards {
+        for j in b..=n {
+            for i in b - 1..j {
+                let c = best[b - 1][i].max(cost[i][j]);
+                if c < best[b][j] {
+                    best[b][j] = c;
+                    from[b][j] = i;
+                }
+            }
+        }
+    }
+    let mut cuts = vec![n];
+    let mut j = n;
+    for b in (1..=boards).rev() {
+        j = from[b][j];
+        cuts.push(j);
+    }
+    cuts.reverse();
+    cuts.windows(2).map(|c| Ok(share(c[0], c[1])?.0)).collect()
+}
+
+/// Splits `config`'s windows over `boards` boards of `kind`: row bands
+/// when the windows fall into at least `boards` of them and they balance
+/// as well as column strips, else column strips.
+pub fn plan(
+    config: &ProcessingConfig,
+    boards: usize,
+    kind: BoardKind,
+    model: &CostModel,
+) -> Result<Plan, PlanError> {
+    if boards == 0 {
+        return Err(PlanError::Split("a rig needs at least one board".into()));
+    }
+    let largest = |shares: &[BoardShare]| {
+        shares
+            .iter()
+            .map(|s| model.frame_instructions(s.rectangle.pixels(), s.windows.len()))
+            .fold(0.0, f64::max)
+    };
+    let mut candidates = Vec::new();
+    let mut why = Vec::new();
+    for cut in [Cut::Rows, Cut::Columns] {
+        let bands = bands(&config.windows, cut);
+        if bands.len() < boards {
+            why.push(format!(
+                "the windows fall into {} {} that no cut crosses",
+                bands.len(),
+                match cut {
+                    Cut::Rows => "row bands",
+                    Cut::Columns => "column strips",
+                }
+            ));
+            continue;
+        }
+        match balance(config, &bands, boards, kind, model) {
+            Ok(shares) => candidates.push((largest(&shares), cut, shares)),
+            Err(e) => why.push(e),
+        }
+    }
+    // Rows unless columns are clearly better (10%): row bands keep whole
+    // camera rows together, as the DCMI delivers them.
+    candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let pick = match candidates.as_slice() {
+        [] => None,
+        [only] => Some(only),
+        [first, second] => {
+            let rows = if first.1 == Cut::Rows { first } else { second };
+            let columns = if first.1 == Cut::Rows { second } else { first };
+            Some(if columns.0 * 1.1 < rows.0 {
+                columns
+            } else {
+                rows
+            })
+        }
+        _ => unreachable!("two ways to cut"),
+    };
+    match pick {
+        Some((_, cut, shares)) => Ok(Plan {
+            cut: *cut,
+            shares: shares.clone(),
+        }),
+        None => Err(PlanError::Split(format!(
+            "cannot give {boards} boards a share of {} windows each without cutting a window: {}; use fewer boards",
+            config.windows.len(),
+            why.join("; ")
+        ))),
+    }
+}
+
+/// What each board of `shares` is predicted to do at `camera_rate` Hz.
+pub fn loads(
+    config: &ProcessingConfig,
+    shares: &[BoardShare],
+    kind: BoardKind,
+    model: &CostModel,
+    camera_rate: Option<f64>,
+) -> Vec<BoardLoad> {
+    shares
+        .iter()
+        .map(|s| {
+            let windows: Vec<&SubapertureWindow> =
+                s.windows.iter().map(|&k| &config.windows[k]).collect();
+            let last = windows.iter().map(|w| w.last_row()).max().unwrap_or(0);
+            let in_last_row = windows.iter().filter(|w| w.last_row() == last).count();
+            let instructions = model.frame_instructions(s.rectangle.pixels(), s.windows.len());
+            BoardLoad {
+                instructions_per_frame: instructions,
+                last_row_instructions: model.last_row_per_window * in_last_row as f64,
+                load: camera_rate
+                    .zip(kind.clock_mhz())
+                    .map(|(rate, mhz)| instructions * rate / (mhz * 1e6)),
+                result_bytes_per_s: camera_rate
+                    .map(|rate| (s.windows.len() * SLOPE_ENTRY_MAX_BYTES) as f64 * rate),
+            }
+        })
+        .collect()
+}
+
+/// Plans with the fewest boards (from `boards` up) whose every board keeps
+/// up with `camera_rate`; `boards` itself when the rate or the clock is
+/// unknown. The error names the fix.
+pub fn plan_keeping_up(
+    config: &ProcessingConfig,
+    boards: usize,
+    kind: BoardKind,
+    model: &CostModel,
+    camera_rate: Option<f64>,
+) -> Result<(Plan, Vec<BoardLoad>), PlanError> {
+    let plan_k = |k: usize| -> Result<(Plan, Vec<BoardLoad>), PlanError> {
+        let p = plan(config, k, kind, model)?;
+        let l = loads(config, &p.shares, kind, model, camera_rate);
+        Ok((p, l))
+    };
+    let (p, l) = plan_k(boards)?;
+    let busiest = l.iter().filter_map(|b| b.load).fold(0.0, f64::max);
+    if busiest <= 1.0 {
+        return Ok((p, l));
+    }
+    let enough = (boards + 1..=boards.max(1) * 64)
+        .take_while(|&k| k <= config.windows.len())
+        .find(|&k| plan_k(k).is_ok_and(|(_, l)| l.iter().all(|b| b.load.is_none_or(|x| x <= 1.0))));
+    let rate = camera_rate.unwrap_or(0.0);
+    let mhz = kind.clock_mhz().unwrap_or(0.0);
+    Err(PlanError::TooSlow(format!(
+        "{boards} {} boards cannot keep up with this camera at {rate} Hz: the busiest would need {:.0}% of its {mhz} MHz core; {}",
+        kind.name(),
+        busiest * 100.0,
+        match enough {
+            Some(k) => format!("use --boards {k} (or a lower --camera-rate)"),
+            None => "no split of these windows fits: lower --camera-rate".to_string(),
+        }
+    )))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use brightpix_protocol::RegularGrid;
+
+    fn canary() -> ProcessingConfig {
+        crate::sil::canary_config()
+    }
+
+    /// The model's constants are the bench tables' figures: regenerating
+    /// the tables with other figures fails here until they are updated.
+    #[test]
+    fn cost_model_is_the_bench_tables() {
+        for (file, model) in [
+            ("cortex-m4.txt", CostModel::CORTEX_M4),
+            ("cortex-m7.txt", CostModel::CORTEX_M7),
+        ] {
+            let path = format!("{}/../docs/bench/{file}", env!("CARGO_MANIFEST_DIR"));
+            let text = std::fs::read_to_string(&path).unwrap();
+            let row = |name: &str| -> (f64, f64) {
+                let line = text
+                    .lines()
+                    .find(|l| l.split_whitespace().next() == Some(name))
+                    .unwrap_or_else(|| panic!("{path}: no row {name}"));
+                let cols: Vec<&str> = line.split_whitespace().collect();
+                (cols[1].parse().unwrap(), cols[4].parse().unwrap())
+            };
+            let (canary, last_row) = row("canary-subtract-next-n20");
+            let (small, _) = row("windows-8x8-n20");
+            assert_eq!(model, CostModel::fit(canary, small, last_row), "{file}");
+        }
+        // The fit reproduces both rows.
+        let m = CostModel::CORTEX_M7;
+        assert!((m.frame_instructions(12544, 49) / 12544.0 - 16.01).abs() < 1e-9);
+        assert!((m.frame_instructions(12544, 196) / 12544.0 - 38.02).abs() < 1e-9);
+    }
+
+    #[test]
+    fn canary_in_three_row_bands() {
+        let config = canary();
+        let plan = plan(&config, 3, BoardKind::Stm32h743, &CostModel::CORTEX_M7).unwrap();
+        assert_eq!(plan.cut, Cut::Rows);
+        let counts: Vec<usize> = plan.shares.iter().map(|s| s.windows.len()).collect();
+        // 7 rows of 7 windows: 2 + 2 + 3 rows (or a permutation).
+        let mut sorted = counts.clone();
+        sorted.sort_unstable();
+        assert_eq!(sorted, [14, 14, 21], "{counts:?}");
+        let mut all: Vec<usize> = plan.shares.iter().flat_map(|s| s.windows.clone()).collect();
+        all.sort_unstable();
+        assert_eq!(all, (0..49).collect::<Vec<_>>());
+        for s in &plan.shares {
+            assert_eq!(s.rectangle.width, 112);
+            for &k in &s.windows {
+                assert!(s.rectangle.holds(&config.windows[k]));
+            }
+        }
+    }
+
+    #[test]
+    fn one_row_of_windows_splits_into_columns() {
+        let camera = Camera {
+            width: 128,
+            height: 16,
+            bit_depth: 12,
+        };
+        let grid = RegularGrid {
+            x: 0,
+            y: 0,
+            columns: 8,
+            rows: 1,
+            width: 16,
+            height: 16,
+            pitch_x: 16,
+            pitch_y: 16,
+        };
+        let config = ProcessingConfig::from_grid(camera, grid, &[]);
+        let plan = plan(&config, 2, BoardKind::Stm32h743, &CostModel::CORTEX_M7).unwrap();
+        assert_eq!(plan.cut, Cut::Columns);
+        assert_eq!(plan.shares[0].windows, [0, 1, 2, 3]);
+        assert_eq!(plan.shares[1].rectangle.x, 64);
+        let err = super::plan(&config, 9, BoardKind::Stm32h743, &CostModel::CORTEX_M7).unwrap_err();
+        assert!(err.to_string().contains("cannot give 9 boards"), "{err}");
+    }
+
+    #[test]
+    fn crop_widths_follow_the_dcmi() {
+        // 8-bit camera, windows 6 wide: the rectangle widens to 8 (a word).
+        let camera = Camera {
+            width: 30,
+            height: 12,
+            bit_depth: 8,
+        };
+        let windows = vec![
+            SubapertureWindow {
+                x: 1,
+                y: 0,
+                width: 6,
+                height: 6,
+            },
+            SubapertureWindow {
+                x: 1,
+                y: 6,
+                width: 6,
+                height: 6,
+            },
+        ];
+        let config = ProcessingConfig::new(camera, windows);
+        let p = plan(&config, 2, BoardKind::Stm32h743, &CostModel::CORTEX_M7).unwrap();
+        assert_eq!(
+            p.shares[0].rectangle,
+            Rectangle {
+                x: 1,
+                y: 0,
+                width: 8,
+                height: 6
+            }
+        );
+        let q = plan(&config, 2, BoardKind::QemuM4, &CostModel::CORTEX_M4).unwrap();
+        assert_eq!(q.shares[0].rectangle.width, 6);
+        let odd = Rectangle {
+            x: 0,
+            y: 0,
+            width: 6,
+            height: 4,
+        };
+        let e = BoardKind::Stm32h743.check_crop(&odd, 8).unwrap_err();
+        assert!(e.contains("multiple of 4"), "{e}");
+        assert!(BoardKind::Stm32h743.check_crop(&odd, 12).is_ok());
+    }
+
+    #[test]
+    fn too_slow_names_the_boards_needed() {
+        // 240x240 of 16x16 windows at 2 kHz: 115 Mpx/s.
+        let camera = Camera {
+            width: 240,
+            height: 240,
+            bit_depth: 12,
+        };
+        let grid = RegularGrid {
+            x: 0,
+            y: 0,
+            columns: 15,
+            rows: 15,
+            width: 16,
+            height: 16,
+            pitch_x: 16,
+            pitch_y: 16,
+        };
+        let config = ProcessingConfig::from_grid(camera, grid, &[]);
+        let model = CostModel::CORTEX_M7;
+        let e =
+            plan_keeping_up(&config, 2, BoardKind::Stm32h743, &model, Some(2000.0)).unwrap_err();
+        let text = e.to_string();
+        assert!(
+            text.contains("cannot keep up") && text.contains("use --boards"),
+            "{text}"
+        );
+        let k: usize = text
+            .split("use --boards ")
+            .nth(1)
+            .and_then(|t| t.split_whitespace().next())
+            .unwrap()
+            .parse()
+            .unwrap();
+        let (_, loads) =
+            plan_keeping_up(&config, k, BoardKind::Stm32h743, &model, Some(2000.0)).unwrap();
+        assert!(loads.iter().all(|l| l.load.unwrap() <= 1.0));
+        assert!(
+            plan_keeping_up(&config, k - 1, BoardKind::Stm32h743, &model, Some(2000.0)).is_err()
+        );
+    }
+}
