@@ -40,6 +40,11 @@ pub struct DemoArgs {
     /// Mismatches to print.
     #[arg(long, default_value_t = 10)]
     show: usize,
+    /// Split the camera over this many simulated boards (a rig, `brightpix rig`): each computes
+    /// its rectangle's sub-apertures; their results are merged by frame number and verified
+    /// against the whole-camera reference.
+    #[arg(long, value_name = "K", value_parser = super::at_least_one, conflicts_with = "pixels_over_uart")]
+    boards: Option<usize>,
 }
 
 enum SimDevice {
@@ -57,6 +62,9 @@ pub fn run(args: DemoArgs) -> Result<()> {
     let t = Instant::now();
     let frames = canary_frames(args.frames, args.seed);
     let sim_time = t.elapsed();
+    if let Some(boards) = args.boards {
+        return super::rig::demo(boards, &frames, args.qemu, args.elf);
+    }
 
     let (device, what) = if args.qemu {
         eprintln!("brightpix demo: starting the firmware in qemu-system-arm...");

@@ -12,6 +12,7 @@ mod endtoend;
 mod paper;
 mod process;
 mod progress;
+mod rig;
 mod simulate_device;
 mod soak;
 mod status;
@@ -50,6 +51,7 @@ enum Command {
     Capture(capture::CaptureArgs),
     SimulateDevice(simulate_device::SimulateDeviceArgs),
     Soak(soak::SoakArgs),
+    Rig(rig::RigArgs),
 }
 
 /// A count or size argument that must be at least 1 (`--chunk 0` would
@@ -100,5 +102,6 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Capture(args) => capture::run(args),
         Command::SimulateDevice(args) => simulate_device::run(args),
         Command::Soak(args) => soak::run(args),
+        Command::Rig(args) => rig::run(args),
     }
 }

@@ -191,8 +191,9 @@ mod tests {
         vec![vec![0, 1, 2], vec![3, 4], vec![5]]
     }
 
-    /// Outcomes arrive out of step across boards (board 0 two frames
-    /// ahead, board 2 last); every merged frame holds one frame's results.
+    /// Outcomes arrive out of step across boards (board 0 all frames
+    /// ahead, board 2 last and out of order); every merged frame holds one
+    /// frame's results.
     #[test]
     fn aligned_by_frame_number_not_arrival() {
         let mut m = Merger::new(maps(), 6);
@@ -205,7 +206,8 @@ mod tests {
         for f in 10..14 {
             merged.extend(m.add(1, done(&maps()[1], f)));
         }
-        for f in 10..14 {
+        // Board 2's outcomes out of order: each still joins its own frame.
+        for f in [11, 10, 13, 12] {
             merged.extend(m.add(2, done(&maps()[2], f)));
         }
         assert_eq!(merged.len(), 4);

@@ -141,7 +141,7 @@ impl BoardKind {
     /// it cannot.
     pub fn check_crop(self, rect: &Rectangle, bit_depth: u8) -> Result<(), String> {
         let multiple = self.width_multiple(bit_depth);
-        if rect.width % multiple != 0 {
+        if !rect.width.is_multiple_of(multiple) {
             return Err(format!(
                 "the {} crops whole 32-bit words: a {bit_depth}-bit rectangle's width must be a multiple of {multiple} pixels, not {}",
                 self.name(),
@@ -296,9 +296,9 @@ fn balance(
         ))
     };
     let mut cost = vec![vec![0.0f64; n + 1]; n + 1];
-    for i in 0..n {
-        for j in i + 1..=n {
-            cost[i][j] = share(i, j)?.1;
+    for (i, row) in cost.iter_mut().enumerate() {
+        for (j, c) in row.iter_mut().enumerate().skip(i + 1) {
+            *c = share(i, j)?.1;
         }
     }
     // best[b][j]: the least largest cost of bands 0..j on b boards.

@@ -1,0 +1,317 @@
+//! Several boards on one camera, with real (in-process) devices: the
+//! merged results equal the whole-camera reference bit for bit, and the
+//! faults of issue 23 (a board that drops a frame, one that disappears,
+//! one with the wrong configuration) behave as documented: that board's
+//! sub-apertures are invalid for those frames and counted, the others go
+//! on, and nothing from two frames is ever merged into one.
+
+mod common;
+use common::run;
+
+use brightpix::config_file::ProcessingConfig;
+use brightpix::io::write_array;
+use brightpix::link::Client;
+use brightpix::reference::Reference;
+use brightpix::rig::{self, BoardKind, CostModel, Rig, RigStartError};
+use brightpix::sim_device::InProcessDevice;
+use brightpix_protocol::{Camera, RegularGrid};
+
+/// A 12-bit 48x48 camera, 3x3 windows of 16x16, N = 6.
+fn whole() -> ProcessingConfig {
+    let camera = Camera {
+        width: 48,
+        height: 48,
+        bit_depth: 12,
+    };
+    let grid = RegularGrid {
+        x: 0,
+        y: 0,
+        columns: 3,
+        rows: 3,
+        width: 16,
+        height: 16,
+        pitch_x: 16,
+        pitch_y: 16,
+    };
+    let mut c = ProcessingConfig::from_grid(camera, grid, &[]);
+    c.pixels = brightpix::config_file::PixelCounts::All(6);
+    c.background = Some((0..48 * 48).map(|k: i32| (k % 5) * 16).collect());
+    c
+}
+
+/// Frames whose every window differs frame to frame: a result merged
+/// from the wrong frame cannot pass for the right one.
+fn frames(count: usize) -> Vec<Vec<u16>> {
+    (0..count)
+        .map(|f| {
+            (0..48 * 48u32)
+                .map(|k| {
+                    (k.wrapping_mul(2654435761).wrapping_add(f as u32 * 40503) >> 20) as u16 & 0xfff
+                })
+                .collect()
+        })
+        .collect()
+}
+
+fn rig_of(boards: usize) -> Rig {
+    let whole = whole();
+    let plan = rig::plan(&whole, boards, BoardKind::Stm32h743, &CostModel::CORTEX_M7).unwrap();
+    Rig::from_plan(whole, BoardKind::Stm32h743, None, &plan).unwrap()
+}
+
+fn devices(rig: &Rig) -> (Vec<InProcessDevice>, Vec<Client>) {
+    let devices: Vec<InProcessDevice> = rig
+        .boards
+        .iter()
+        .map(|_| InProcessDevice::start_pty().unwrap())
+        .collect();
+    let clients = devices
+        .iter()
+        .map(|d| Client::open(d.port()).unwrap())
+        .collect();
+    (devices, clients)
+}
+
+/// Every merged sub-aperture result that is present equals the
+/// reference's for its own frame; returns how many were compared.
+fn check_present(rig: &Rig, frames: &[Vec<u16>], merged: &[rig::MergedFrame]) -> usize {
+    let mut reference = Reference::new(&rig.whole.view()).unwrap();
+    let mut compared = 0;
+    for m in merged {
+        let expected = reference.process_frame(&frames[m.frame as usize]).unwrap();
+        for (k, r) in m.results.iter().enumerate() {
+            if let Some(r) = r {
+                let e = expected[k];
+                assert_eq!(
+                    (r.index as usize, r.slope_x, r.slope_y, r.flux, r.valid),
+                    (k, e.slope_x, e.slope_y, e.flux, e.valid),
+                    "frame {} sub-aperture {k}",
+                    m.frame
+                );
+                compared += 1;
+            }
+        }
+    }
+    compared
+}
+
+#[test]
+fn three_boards_merge_to_the_whole_camera_bit_for_bit() {
+    let rig = rig_of(3);
+    assert_eq!(rig.boards.len(), 3);
+    let (_devices, mut clients) = devices(&rig);
+    rig::configure(&rig, &mut clients).unwrap();
+    let frames = frames(40);
+    let mut merged = Vec::new();
+    let run = rig::stream(&rig, clients, &frames, 0, true, |m| merged.push(m.clone()));
+    assert_eq!(run.frames_complete, 40);
+    assert_eq!(run.frames_partial, 0);
+    let v = run.verifier.unwrap();
+    assert!(
+        v.all_match() && v.frames_verified == 40,
+        "{:?}",
+        v.mismatches
+    );
+    assert_eq!(check_present(&rig, &frames, &merged), 40 * 9);
+    let order: Vec<u32> = merged.iter().map(|m| m.frame).collect();
+    assert_eq!(order, (0..40).collect::<Vec<_>>());
+}
+
+/// A pixel out of the 12-bit range in board 1's rectangle: board 1 drops
+/// that frame, the others deliver it; its sub-apertures are invalid for
+/// that frame only, and every result present is its own frame's.
+#[test]
+fn a_board_that_drops_a_frame() {
+    let rig = rig_of(3);
+    let (_devices, mut clients) = devices(&rig);
+    rig::configure(&rig, &mut clients).unwrap();
+    let mut frames = frames(20);
+    let r = rig.boards[1].rectangle;
+    frames[7][(r.y as usize + 2) * 48 + r.x as usize + 3] = 4096;
+    let mut merged = Vec::new();
+    let run = rig::stream(&rig, clients, &frames, 0, false, |m| merged.push(m.clone()));
+    assert_eq!((run.frames_complete, run.frames_partial), (19, 1));
+    assert_eq!(run.boards[1].counts.frames_dropped, 1);
+    assert_eq!(run.boards[0].counts.frames_done, 20);
+    let partial = &merged[7];
+    assert_eq!(
+        (partial.frame, partial.missing_boards.as_slice()),
+        (7, &[1][..])
+    );
+    for &k in &rig.boards[1].windows {
+        assert!(partial.results[k].is_none());
+    }
+    let mut fixed = frames.clone();
+    fixed[7][(r.y as usize + 2) * 48 + r.x as usize + 3] = 0;
+    assert_eq!(
+        check_present(&rig, &fixed, &merged),
+        20 * 9 - rig.boards[1].windows.len()
+    );
+}
+
+/// Board 2 disappears after frame 10 is merged: its sub-apertures are
+/// invalid from then on, the other boards' results go on, frame by frame.
+#[test]
+fn a_board_that_disappears() {
+    let rig = rig_of(3);
+    let (devices, mut clients) = devices(&rig);
+    rig::configure(&rig, &mut clients).unwrap();
+    let frames = frames(60);
+    let mut devices: Vec<Option<InProcessDevice>> = devices.into_iter().map(Some).collect();
+    let mut merged = Vec::new();
+    let run = rig::stream(&rig, clients, &frames, 0, false, |m| {
+        merged.push(m.clone());
+        if m.frame == 10 {
+            devices[2] = None; // the board is unplugged
+        }
+    });
+    assert_eq!(merged.len(), 60);
+    assert!(
+        run.boards[2].error.is_some(),
+        "board 2 must report why it stopped"
+    );
+    assert!(run.boards[0].error.is_none() && run.boards[1].error.is_none());
+    let lost = run.boards[2].counts.frames_missing + run.boards[2].counts.frames_dropped;
+    assert!(lost >= 40, "{:?}", run.boards[2].counts);
+    assert_eq!(run.boards[0].counts.frames_done, 60);
+    assert_eq!(run.frames_partial, lost);
+    for m in &merged[..=10] {
+        assert!(m.missing_boards.is_empty());
+    }
+    for m in &merged[50..] {
+        assert_eq!(m.missing_boards, [2]);
+    }
+    check_present(&rig, &frames, &merged);
+}
+
+#[test]
+fn a_board_with_another_configuration_is_refused_before_any_frame() {
+    let rig = rig_of(2);
+    let (_devices, mut clients) = devices(&rig);
+    rig::configure(&rig, &mut clients).unwrap();
+    // Board 1 is reconfigured by someone else: the whole camera's configuration.
+    clients[1].configure(&rig.whole.view()).unwrap();
+    let e = rig::check_configurations(&rig, &mut clients).unwrap_err();
+    assert!(matches!(e, RigStartError::WrongConfiguration { ref board, .. } if board == "board-1"));
+    assert!(e.to_string().contains("not its part of the rig"), "{e}");
+}
+
+#[test]
+fn plan_check_and_stream_from_the_command_line() {
+    let dir = common::scratch("rig", "cli");
+    let config = dir.join("wfs.toml");
+    std::fs::write(
+        &config,
+        "[camera]\nwidth = 48\nheight = 48\nbit_depth = 12\n\
+         [subapertures.grid]\nx = 0\ny = 0\ncolumns = 3\nrows = 3\nwidth = 16\nheight = 16\n\
+         [selection]\npixels = 6\n",
+    )
+    .unwrap();
+    let rig_file = dir.join("rig.toml");
+    let (ok, text) = run(&[
+        "rig",
+        "plan",
+        "--config",
+        config.to_str().unwrap(),
+        "--boards",
+        "3",
+        "--camera-rate",
+        "2000",
+        "--out",
+        rig_file.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    assert!(
+        text.contains("cut in row bands") && text.contains("load"),
+        "{text}"
+    );
+    let written = std::fs::read_to_string(&rig_file).unwrap();
+    assert!(
+        written.contains("config = \"wfs.toml\"") && written.matches("[[boards]]").count() == 3,
+        "{written}"
+    );
+    let (ok, text) = run(&["rig", "check", "--rig", rig_file.to_str().unwrap()]);
+    assert!(ok && text.contains("board-2"), "{text}");
+
+    let pixels: Vec<u16> = frames(12).concat();
+    let frames_file = dir.join("frames.npy");
+    write_array(&frames_file, &[12, 48, 48], &pixels).unwrap();
+    let devices: Vec<InProcessDevice> = (0..3)
+        .map(|_| InProcessDevice::start_pty().unwrap())
+        .collect();
+    let ports = devices
+        .iter()
+        .map(|d| d.port().to_string())
+        .collect::<Vec<_>>()
+        .join(",");
+    let out = dir.join("merged.npy");
+    let (ok, text) = run(&[
+        "rig",
+        "stream",
+        "--rig",
+        rig_file.to_str().unwrap(),
+        "--ports",
+        &ports,
+        "--frames",
+        frames_file.to_str().unwrap(),
+        "--verify",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    assert!(
+        text.contains("verified: 12 merged frames") && text.contains("0 mismatches"),
+        "{text}"
+    );
+    // The merged file equals `process` on the whole camera.
+    let whole_out = dir.join("whole.npy");
+    let (ok, text) = run(&[
+        "process",
+        "--config",
+        config.to_str().unwrap(),
+        "--frames",
+        frames_file.to_str().unwrap(),
+        "--out",
+        whole_out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    for suffix in ["npy", "flux.npy", "valid.npy"] {
+        assert_eq!(
+            std::fs::read(dir.join(format!("merged.{suffix}"))).unwrap(),
+            std::fs::read(dir.join(format!("whole.{suffix}"))).unwrap(),
+            "{suffix}"
+        );
+    }
+    let provenance = std::fs::read_to_string(dir.join("merged.json")).unwrap();
+    assert!(
+        provenance.contains("board-0 0-2; board-1 3-5; board-2 6-8"),
+        "{provenance}"
+    );
+
+    // Wrong ports: as many as the boards.
+    let (ok, text) = run(&[
+        "rig",
+        "stream",
+        "--rig",
+        rig_file.to_str().unwrap(),
+        "--ports",
+        "a,b",
+        "--frames",
+        frames_file.to_str().unwrap(),
+    ]);
+    assert!(
+        !ok && text.contains("--ports gives 2 ports for 3 boards"),
+        "{text}"
+    );
+}
+
+#[test]
+fn demo_with_three_boards() {
+    let (ok, text) = run(&["demo", "--boards", "3", "--count", "30"]);
+    assert!(ok, "{text}");
+    assert!(
+        text.contains("verified: 30 merged frames, 1470 sub-aperture results")
+            && text.contains("PASS"),
+        "{text}"
+    );
+}
