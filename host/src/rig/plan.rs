@@ -496,6 +496,31 @@ mod tests {
         assert!((m.frame_instructions(12544, 196) / 12544.0 - 38.02).abs() < 1e-9);
     }
 
+    /// A worst-case result's bytes on the wire, from the encoder itself.
+    #[test]
+    fn slope_entry_at_its_longest() {
+        use brightpix_protocol::wire::{encode, DeviceMessage, SlopeEntry, SlopeList};
+        let worst = SlopeEntry {
+            index: u16::MAX,
+            slope_x: i32::MIN,
+            slope_y: i32::MIN,
+            flux: i64::MIN,
+            valid: true,
+        };
+        let size = |n: usize| {
+            let mut results = SlopeList::new();
+            for _ in 0..n {
+                results.push(worst).unwrap();
+            }
+            let mut buf = [0u8; 512];
+            encode(&DeviceMessage::Slopes { frame: 0, results }, &mut buf)
+                .unwrap()
+                .len()
+        };
+        // COBS adds a byte per 254 at most: none between one and two entries.
+        assert_eq!(size(2) - size(1), SLOPE_ENTRY_MAX_BYTES);
+    }
+
     #[test]
     fn canary_in_three_row_bands() {
         let config = canary();
