@@ -68,7 +68,8 @@ static OPEN_WINDOWS: ConstStaticCell<[OpenWindow; OPEN]> =
     ConstStaticCell::new([OpenWindow::CLOSED; OPEN]);
 static FREE: ConstStaticCell<[u16; OPEN]> = ConstStaticCell::new([0; OPEN]);
 static POOL: ConstStaticCell<[Entry; ENTRIES]> = ConstStaticCell::new([Entry::ZERO; ENTRIES]);
-static HISTORY: ConstStaticCell<[u16; HISTORY_PIXELS]> = ConstStaticCell::new([0; HISTORY_PIXELS]);
+static HISTORY: ConstStaticCell<WordAligned<[u16; HISTORY_PIXELS]>> =
+    ConstStaticCell::new(WordAligned([0; HISTORY_PIXELS]));
 static SCRATCH: ConstStaticCell<[i32; SCRATCH_ENTRIES]> =
     ConstStaticCell::new([0; SCRATCH_ENTRIES]);
 static RESCAN: ConstStaticCell<[Entry; SCRATCH_ENTRIES]> =
@@ -78,10 +79,20 @@ static VET_SCRATCH: ConstStaticCell<[u16; S]> = ConstStaticCell::new([0; S]);
 static RESULTS: ConstStaticCell<[SubapertureResult; Q]> = ConstStaticCell::new([NO_RESULT; Q]);
 static RX: ConstStaticCell<[u8; MAX_FRAME_LEN]> = ConstStaticCell::new([0; MAX_FRAME_LEN]);
 static TX: ConstStaticCell<[u8; MAX_FRAME_LEN]> = ConstStaticCell::new([0; MAX_FRAME_LEN]);
-static PIXELS: ConstStaticCell<[u16; PIXEL_BATCH]> = ConstStaticCell::new([0; PIXEL_BATCH]);
+/// Word-aligned storage. The row kernels read pixels two to a 32-bit word
+/// and take a row only when it starts on a word (`Engine::push_whole_row`,
+/// which otherwise falls back to the portable path); a `[u16; N]` static on
+/// its own may start 2 bytes past one, and then no row of an even-width
+/// camera would ever reach the kernels.
+#[repr(C, align(4))]
+struct WordAligned<T>(T);
+
+static PIXELS: ConstStaticCell<WordAligned<[u16; PIXEL_BATCH]>> =
+    ConstStaticCell::new(WordAligned([0; PIXEL_BATCH]));
 static STREAM_FRAMES: ConstStaticCell<[u8; STREAM_BUFFER_BYTES]> =
     ConstStaticCell::new([0; STREAM_BUFFER_BYTES]);
-static STREAM_PIXELS: ConstStaticCell<[u16; PIXEL_BATCH]> = ConstStaticCell::new([0; PIXEL_BATCH]);
+static STREAM_PIXELS: ConstStaticCell<WordAligned<[u16; PIXEL_BATCH]>> =
+    ConstStaticCell::new(WordAligned([0; PIXEL_BATCH]));
 
 /// Bytes of all the buffers above.
 pub const TOTAL_BYTES: usize = 2 * core::mem::size_of::<SlotStorage<S, P>>()
@@ -106,7 +117,7 @@ pub fn device_buffers() -> DeviceBuffers<'static> {
             open: OPEN_WINDOWS.take(),
             free: FREE.take(),
             entries: POOL.take(),
-            history: HISTORY.take(),
+            history: &mut HISTORY.take().0,
             scratch: SCRATCH.take(),
             rescan: RESCAN.take(),
         },
@@ -115,12 +126,12 @@ pub fn device_buffers() -> DeviceBuffers<'static> {
         results: RESULTS.take(),
         rx: RX.take(),
         tx: TX.take(),
-        pixels: PIXELS.take(),
+        pixels: &mut PIXELS.take().0,
     }
 }
 
 /// The pixel stream's buffers: frames read from the file, pixels of one
 /// message. Panics if called twice.
 pub fn stream_buffers() -> (&'static mut [u8], &'static mut [u16]) {
-    (STREAM_FRAMES.take(), STREAM_PIXELS.take())
+    (STREAM_FRAMES.take(), &mut STREAM_PIXELS.take().0)
 }

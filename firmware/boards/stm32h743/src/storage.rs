@@ -98,6 +98,13 @@ const NO_RESULT: SubapertureResult = SubapertureResult {
     valid: false,
 };
 
+/// Word-aligned storage. The row kernels read pixels two to a 32-bit word
+/// and take a row only when it starts on a word (`Engine::push_whole_row`,
+/// which otherwise falls back to the portable path); a `[u16; N]` field on
+/// its own may start 2 bytes past one.
+#[repr(C, align(4))]
+pub struct WordAligned<T>(pub T);
+
 /// DTCM: everything the CPU works on per pixel, and the small buffers.
 pub struct Dtcm {
     pub engine: StaticEngineMemory<SUBAPERTURES, OPEN_WINDOWS, POOL_ENTRIES, 0, 0>,
@@ -106,9 +113,9 @@ pub struct Dtcm {
     pub results: [SubapertureResult; RESULTS_PER_ROW],
     pub rx: [u8; MAX_FRAME_LEN],
     pub tx: [u8; MAX_FRAME_LEN],
-    pub pixels: [u16; PIXEL_BATCH],
+    pub pixels: WordAligned<[u16; PIXEL_BATCH]>,
     pub run_words: [u32; RUN_WORDS],
-    pub run_pixels: [u16; 4 * RUN_WORDS],
+    pub run_pixels: WordAligned<[u16; 4 * RUN_WORDS]>,
 }
 
 impl Dtcm {
@@ -120,9 +127,9 @@ impl Dtcm {
             results: [NO_RESULT; RESULTS_PER_ROW],
             rx: [0; MAX_FRAME_LEN],
             tx: [0; MAX_FRAME_LEN],
-            pixels: [0; PIXEL_BATCH],
+            pixels: WordAligned([0; PIXEL_BATCH]),
             run_words: [0; RUN_WORDS],
-            run_pixels: [0; 4 * RUN_WORDS],
+            run_pixels: WordAligned([0; 4 * RUN_WORDS]),
         }
     }
 }
@@ -220,10 +227,10 @@ impl Dtcm {
                 results: &mut self.results,
                 rx: &mut self.rx,
                 tx: &mut self.tx,
-                pixels: &mut self.pixels,
+                pixels: &mut self.pixels.0,
             },
             &mut self.run_words,
-            &mut self.run_pixels,
+            &mut self.run_pixels.0,
         )
     }
 }
