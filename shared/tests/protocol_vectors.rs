@@ -207,7 +207,7 @@ fn host_messages(payload: &[u8]) -> Vec<(&'static str, HostMessage<'_>)> {
     }
     all.extend([
         (
-            "commit: CRC-32 of all table bytes",
+            "commit: the configuration's digest, CRC-32 of the header's encoding then every table's bytes (PROTOCOL.md §7)",
             HostMessage::ConfigCommit {
                 upload_id: 0x0102_0304,
                 crc32: 0xCBF4_3926,

@@ -16,7 +16,7 @@ use super::{Hello, MAX_FRAME_LEN};
 /// init and xorout 0xFFFFFFFF. `CRC32.checksum(b"123456789") == 0xCBF43926`.
 pub static CRC32: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
 
-/// A running CRC-32 (of an upload's tables).
+/// A running CRC-32 (of an upload: the header's encoding, then its tables; PROTOCOL.md §7).
 pub type Crc32Digest = crc::Digest<'static, u32>;
 
 /// Bytes of the CRC after the postcard bytes.

@@ -392,12 +392,12 @@ fn encoding_is_as_documented() {
     assert_eq!(
         enc_host(HostMessage::Hello {
             protocol: Hello {
-                version: 2,
+                version: 3,
                 schema: 300
             },
             session: 7
         }),
-        [0x01, 0x09, 0x02, 0xac, 0x02, 0x07, 0xb3, 0x6c, 0x1b, 0x10, 0x00]
+        [0x01, 0x09, 0x03, 0xac, 0x02, 0x07, 0xd6, 0x0b, 0xa7, 0xa8, 0x00]
     );
     assert_eq!(
         enc_device(DeviceMessage::FrameDone {
