@@ -153,6 +153,9 @@ pub fn run(args: SoakArgs) -> Result<()> {
         }
     }
     let elapsed = started.elapsed();
+    // After Ctrl-C the interrupt hook would refuse the last request too: the
+    // report promised by --help needs the device's counters.
+    client.set_interrupt(None);
     let after = client.status();
     let memory_end = pid.and_then(resident_kb);
     let mut device = device;
