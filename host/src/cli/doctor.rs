@@ -8,7 +8,7 @@ use std::fmt;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Result};
-use brightpix_protocol::wire::{ErratumFix, Health, ResetReason, Status};
+use brightpix_protocol::wire::{crs_sync_source_name, ErratumFix, Health, ResetReason, Status};
 use clap::Args;
 
 use crate::link::{Client, DeviceInfo};
@@ -180,12 +180,16 @@ pub fn examine(info: &DeviceInfo, status: &Status, round_trip: Duration) -> Vec<
     lines.push(match usb_clock {
         None => missing("usb clock"),
         Some(u) => {
-            let source = match u.sync_source {
-                0 => "CRS_SYNC pin",
-                1 => "LSE",
-                2 => "USB1 (OTG_HS) SOF",
-                3 => "USB2 (OTG_FS) SOF",
-                _ => "invalid",
+            // SYNCSRC's codes depend on the silicon revision (rev Y swaps
+            // the pin and USB2); without the revision, say so.
+            let source = match silicon {
+                Some(s) => format!(
+                    "{} (SYNCSRC {}, REV_ID {:#06x})",
+                    crs_sync_source_name(u.sync_source, s.revision_id),
+                    u.sync_source,
+                    s.revision_id
+                ),
+                None => format!("SYNCSRC {} (silicon revision unknown)", u.sync_source),
             };
             let verdict = if !u.synced {
                 Verdict::Fail
@@ -198,7 +202,7 @@ pub fn examine(info: &DeviceInfo, status: &Status, round_trip: Duration) -> Vec<
                 "usb clock",
                 verdict,
                 format!(
-                    "HSI48 trimmed by the CRS from {source}: {}, trim {} (32 = factory middle), {} sync errors",
+                    "HSI48 trimmed by the CRS from {source}: {}, trim {} (32 = factory middle), {} sync errors since boot (a miss counts whenever SOFs stop: unplugging, suspend, a host reset)",
                     if u.synced {
                         "synchronised"
                     } else {
@@ -252,7 +256,7 @@ pub fn examine(info: &DeviceInfo, status: &Status, round_trip: Duration) -> Vec<
                 "camera interface",
                 verdict,
                 format!(
-                    "overruns {}, sync errors {}, DMA transfer errors {}, DMA FIFO errors {}, FIFO not drained at frame end {}",
+                    "since boot: overruns {}, sync errors {} (embedded-sync mode only; 0 with HSYNC/VSYNC wires), DMA transfer errors {}, DMA FIFO errors {}, FIFO not drained at frame end {}",
                     c.overruns, c.sync_errors, c.dma_transfer_errors, c.dma_fifo_errors, c.fifo_not_drained
                 ),
             )

@@ -63,12 +63,40 @@ pub struct Clocks {
     pub voltage_ready: bool,
 }
 
+/// REV_ID of the STM32H743's revision Y (DBGMCU_IDCODE bits 31:16).
+pub const STM32H7_REV_Y: u16 = 0x1003;
+
+/// CRS_CFGR.SYNCSRC that selects USB2 (OTG_FS) start-of-frame on an
+/// STM32H7 of `revision_id`: revision Y and earlier encode the USB2 SOF as
+/// 0b00 and the CRS_SYNC pin as 0b11, later revisions the other way round
+/// (as ST's HAL_RCCEx_CRSConfig does).
+pub const fn crs_sync_source_usb2(revision_id: u16) -> u8 {
+    if revision_id <= STM32H7_REV_Y {
+        0b00
+    } else {
+        0b11
+    }
+}
+
+/// What CRS_CFGR.SYNCSRC = `code` selects on an STM32H7 of `revision_id`
+/// (see [`crs_sync_source_usb2`]).
+pub const fn crs_sync_source_name(code: u8, revision_id: u16) -> &'static str {
+    let usb2 = crs_sync_source_usb2(revision_id);
+    match code {
+        1 => "LSE",
+        2 => "USB1 (OTG_HS) SOF",
+        c if c == usb2 => "USB2 (OTG_FS) SOF",
+        0 | 3 => "CRS_SYNC pin",
+        _ => "invalid",
+    }
+}
+
 /// The USB clock's automatic trimming (STM32: the CRS trims HSI48 against
 /// the USB start-of-frame every millisecond).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
 pub struct UsbClockSync {
-    /// Synchronisation source (STM32H7 CRS_CFGR.SYNCSRC: 0 CRS_SYNC pin,
-    /// 1 LSE, 2 USB1 (OTG_HS) SOF, 3 USB2 (OTG_FS) SOF).
+    /// Synchronisation source, CRS_CFGR.SYNCSRC as read back; its meaning
+    /// depends on the silicon revision ([`crs_sync_source_name`]).
     pub sync_source: u8,
     /// A "synchronisation OK" event has been seen since start.
     pub synced: bool,
@@ -103,4 +131,21 @@ pub struct CameraInterface {
     pub dma_fifo_errors: u32,
     /// Frame ends at which the interface's FIFO had not drained.
     pub fifo_not_drained: u32,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn crs_sync_source_by_revision() {
+        // Revision Y (0x1003): USB2 SOF is 0b00; V (0x2003): 0b11.
+        assert_eq!(crs_sync_source_usb2(0x1003), 0);
+        assert_eq!(crs_sync_source_usb2(0x2003), 3);
+        assert_eq!(crs_sync_source_name(0, 0x1003), "USB2 (OTG_FS) SOF");
+        assert_eq!(crs_sync_source_name(3, 0x1003), "CRS_SYNC pin");
+        assert_eq!(crs_sync_source_name(3, 0x2003), "USB2 (OTG_FS) SOF");
+        assert_eq!(crs_sync_source_name(0, 0x2003), "CRS_SYNC pin");
+        assert_eq!(crs_sync_source_name(2, 0x2003), "USB1 (OTG_HS) SOF");
+    }
 }

@@ -63,7 +63,10 @@ pub use frame::{
     decode, decode_body, encode, hello_in_body, hello_prefix, unstuff, Crc32Digest, FrameReader,
     Received, WireError, CRC32, CRC_LEN,
 };
-pub use health::{CameraInterface, Clocks, ErratumFix, Health, Silicon, StackUsage, UsbClockSync};
+pub use health::{
+    crs_sync_source_name, crs_sync_source_usb2, CameraInterface, Clocks, ErratumFix, Health,
+    Silicon, StackUsage, UsbClockSync, STM32H7_REV_Y,
+};
 pub use tables::{PixelRowsPlan, UploadPlan};
 
 /// Bumped by hand whenever the meaning of a message changes without its

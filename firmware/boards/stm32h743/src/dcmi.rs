@@ -92,6 +92,10 @@ static HALF_EVENTS: AtomicU32 = AtomicU32::new(0);
 /// Frame ends, recorded by the DCMI interrupt.
 static MARKS: FrameMarks = FrameMarks::new();
 static WAKER: AtomicWaker = AtomicWaker::new();
+/// Reads of DCMI_CR waiting for CAPTURE to clear when stopping (each a few
+/// cycles on the AHB: about 0.2 s in all at 480 MHz).
+const CAPTURE_STOP_SPINS: u32 = 20_000_000;
+
 /// The ring's address and length, for the frame-end interrupt.
 static RING_LEN: AtomicU32 = AtomicU32::new(0);
 
@@ -308,10 +312,17 @@ impl DcmiRing {
 
     fn halt(&mut self) {
         let dcmi = pac::DCMI;
-        dcmi.cr().modify(|w| {
-            w.set_capture(false);
-            w.set_enable(false);
-        });
+        // As ST's HAL_DCMI_Stop: CAPTURE cleared first, then, once it reads
+        // back 0 (the capture in progress has stopped, at the end of its
+        // frame), ENABLE. Bounded: a camera that stopped mid-frame leaves
+        // CAPTURE set, and the watchdog must not bite here (~0.2 s at
+        // 480 MHz, longer than any frame the board can keep up with).
+        dcmi.cr().modify(|w| w.set_capture(false));
+        let mut spins: u32 = 0;
+        while dcmi.cr().read().capture() && spins < CAPTURE_STOP_SPINS {
+            spins += 1;
+        }
+        dcmi.cr().modify(|w| w.set_enable(false));
         dcmi.ier().write(|_| {});
         let st = pac::DMA1.st(STREAM);
         st.cr().modify(|w| w.set_en(false));

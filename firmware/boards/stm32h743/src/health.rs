@@ -11,7 +11,8 @@
 use core::cell::Cell;
 
 use brightpix_protocol::wire::{
-    CameraInterface, Clocks, ErratumFix, Health, Silicon, StackUsage, UsbClockSync,
+    crs_sync_source_usb2, CameraInterface, Clocks, ErratumFix, Health, Silicon, StackUsage,
+    UsbClockSync,
 };
 use cortex_m::interrupt::Mutex;
 
@@ -156,9 +157,6 @@ const CRS_CR: usize = 0x4000_8400; // CEN bit 5, AUTOTRIMEN bit 6, TRIM bits 13:
 const CRS_CFGR: usize = 0x4000_8404; // RELOAD 15:0, FELIM 23:16, SYNCDIV 26:24, SYNCSRC 29:28
 const CRS_ISR: usize = 0x4000_8408; // SYNCOKF 0, ERRF 2, SYNCERR 8, SYNCMISS 9, TRIMOVF 10
 const CRS_ICR: usize = 0x4000_840C; // SYNCOKC 0, SYNCWARNC 1, ERRC 2, ESYNCC 3
-/// SYNCSRC = 0b11: USB2 (OTG_FS, the NUCLEO's user USB) start-of-frame.
-/// 0b10 (USB1 = OTG_HS) is what embassy's `sync_from_usb` selects.
-pub const SYNC_SOURCE_USB2: u8 = 0b11;
 /// RELOAD = 48 MHz / 1 kHz SOF - 1, FELIM 34: the reset values, meant for
 /// USB SOF.
 const RELOAD: u32 = 47_999;
@@ -175,10 +173,12 @@ pub fn start_usb_clock_trimming() {
     write(RCC_APB1HENR, read(RCC_APB1HENR) | (1 << 1));
     cortex_m::asm::dsb();
     write(CRS_CR, read(CRS_CR) & !((1 << 5) | (1 << 6)));
-    write(
-        CRS_CFGR,
-        (u32::from(SYNC_SOURCE_USB2) << 28) | (FELIM << 16) | RELOAD,
-    );
+    // USB2 (OTG_FS, the NUCLEO's user USB) start-of-frame, whose SYNCSRC
+    // code depends on the revision (0b10, USB1 = OTG_HS, is what embassy's
+    // `sync_from_usb` selects).
+    let revision_id = (read(DBGMCU_IDCODE) >> 16) as u16;
+    let source = crs_sync_source_usb2(revision_id);
+    write(CRS_CFGR, (u32::from(source) << 28) | (FELIM << 16) | RELOAD);
     write(CRS_ICR, 0b1111);
     write(CRS_CR, read(CRS_CR) | (1 << 6) | (1 << 5));
 }
