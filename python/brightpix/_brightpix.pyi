@@ -85,7 +85,7 @@ class Result:
     flux: npt.NDArray[np.int64]
     valid: npt.NDArray[np.bool_]
     received: npt.NDArray[np.bool_]
-    source: Literal["engine", "reference", "device"]
+    source: Literal["engine", "reference", "device", "rig"]
     config: Config
     version: str
     @property
@@ -135,6 +135,32 @@ class Device:
     def close(self) -> None: ...
     def __enter__(self) -> Self: ...
     def __exit__(self, *args: object) -> bool: ...
+
+class Rig:
+    @staticmethod
+    def plan(
+        config: Config,
+        boards: int,
+        *,
+        board: Literal["stm32h743", "qemu-m4", "qemu-m7"] = "stm32h743",
+        camera_rate: float | None = None,
+    ) -> Rig: ...
+    @staticmethod
+    def load(path: StrPath) -> Rig: ...
+    @property
+    def config(self) -> Config: ...
+    @property
+    def boards(self) -> list[dict[str, Any]]: ...
+    def stream(
+        self,
+        frames: npt.NDArray[Any],
+        *,
+        ports: list[str] | None = None,
+        verify: bool = False,
+        configure: bool = True,
+        pixels_fifos: list[StrPath | None] | None = None,
+    ) -> Result: ...
+    def to_toml(self, config_path: StrPath) -> str: ...
 
 class SimulatedDevice:
     def __init__(self, *, qemu: bool = False, elf: StrPath | None = None) -> None: ...

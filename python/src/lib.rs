@@ -10,6 +10,7 @@ mod config;
 mod device;
 mod errors;
 mod process;
+mod rig;
 mod simulate;
 
 use pyo3::prelude::*;
@@ -28,6 +29,7 @@ fn _brightpix(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(process::centroid, m)?)?;
     m.add_class::<device::PyDevice>()?;
     m.add_class::<device::PySimulatedDevice>()?;
+    m.add_class::<rig::PyRig>()?;
     m.add_class::<simulate::PySimulation>()?;
     m.add_function(wrap_pyfunction!(simulate::simulate, m)?)?;
     Ok(())

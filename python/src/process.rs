@@ -131,7 +131,8 @@ pub struct PyResultSet {
     /// ``(F, S)`` a result arrived (False only for a device's lost results).
     #[pyo3(get)]
     received: Py<PyAny>,
-    /// What computed it: "engine", "reference" or "device".
+    /// What computed it: "engine", "reference", "device" or "rig" (merged
+    /// from several boards).
     #[pyo3(get)]
     source: &'static str,
     /// The configuration that produced it.
@@ -438,7 +439,7 @@ pub fn _result_from_arrays(
     source: &str,
     config: Py<PyConfig>,
 ) -> PyResult<PyResultSet> {
-    let source = ["engine", "reference", "device"]
+    let source = ["engine", "reference", "device", "rig"]
         .into_iter()
         .find(|&s| s == source)
         .ok_or_else(|| PyValueError::new_err(format!("result source {source:?}")))?;

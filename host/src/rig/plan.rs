@@ -453,8 +453,8 @@ pub fn plan_keeping_up(
         kind.name(),
         busiest * 100.0,
         match enough {
-            Some(k) => format!("use --boards {k} (or a lower --camera-rate)"),
-            None => "no split of these windows fits: lower --camera-rate".to_string(),
+            Some(k) => format!("{k} boards keep up (--boards {k}), or a lower camera rate"),
+            None => "no split of these windows keeps up: lower the camera rate".to_string(),
         }
     )))
 }
@@ -638,13 +638,13 @@ mod tests {
             plan_keeping_up(&config, 2, BoardKind::Stm32h743, &model, Some(2000.0)).unwrap_err();
         let text = e.to_string();
         assert!(
-            text.contains("cannot keep up") && text.contains("use --boards"),
+            text.contains("cannot keep up") && text.contains("boards keep up (--boards"),
             "{text}"
         );
         let k: usize = text
-            .split("use --boards ")
+            .split("(--boards ")
             .nth(1)
-            .and_then(|t| t.split_whitespace().next())
+            .and_then(|t| t.split(|c: char| !c.is_ascii_digit()).next())
             .unwrap()
             .parse()
             .unwrap();
