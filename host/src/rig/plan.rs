@@ -616,23 +616,8 @@ mod tests {
 
     #[test]
     fn too_slow_names_the_boards_needed() {
-        // 240x240 of 16x16 windows at 2 kHz: 115 Mpx/s.
-        let camera = Camera {
-            width: 240,
-            height: 240,
-            bit_depth: 12,
-        };
-        let grid = RegularGrid {
-            x: 0,
-            y: 0,
-            columns: 15,
-            rows: 15,
-            width: 16,
-            height: 16,
-            pitch_x: 16,
-            pitch_y: 16,
-        };
-        let config = ProcessingConfig::from_grid(camera, grid, &[]);
+        // 240x240 of 16x16 windows (the bench's OCAM2K-class workload) at 2 kHz: 115 Mpx/s.
+        let config = crate::bench::workloads::ocam240_config();
         let model = CostModel::CORTEX_M7;
         let e =
             plan_keeping_up(&config, 2, BoardKind::Stm32h743, &model, Some(2000.0)).unwrap_err();
