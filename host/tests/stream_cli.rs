@@ -248,3 +248,123 @@ fn stream_layout_vector_and_the_all_invalid_warning() {
     drop(device);
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// A new `stream --out x.npy` removes an earlier run's `x.flux.npy`,
+/// `x.valid.npy` and `x.json` before its first frame, so a run killed
+/// part-way never leaves its slopes beside another run's flux and
+/// provenance (issue 27 item 8).
+#[test]
+fn a_killed_stream_leaves_no_other_runs_companions() {
+    let dir = scratch("killed");
+    let config = config(&dir, 5);
+    let frames = frames(&dir, 20_000);
+    let out = dir.join("s.npy");
+    let companions = ["s.flux.npy", "s.valid.npy", "s.json"].map(|n| dir.join(n));
+    for c in &companions {
+        std::fs::write(c, b"an earlier run's file").unwrap();
+    }
+    let device = InProcessDevice::start_pty().unwrap();
+    let mut child = common::brightpix()
+        .args(["stream", "--port", device.port(), "--config"])
+        .arg(&config)
+        .arg("--frames")
+        .arg(&frames)
+        .arg("--out")
+        .arg(&out)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // Killed once some frames are in the slopes file.
+    let started = std::time::Instant::now();
+    while std::fs::metadata(&out).map_or(0, |m| m.len()) < 64 * 1024 {
+        assert!(started.elapsed().as_secs() < 60, "no slopes written");
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the stream ended before it could be killed"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    child.kill().unwrap();
+    let status = child.wait().unwrap();
+    assert!(!status.success(), "killed");
+    for c in &companions {
+        assert!(
+            !c.exists(),
+            "{} of the earlier run is still there",
+            c.display()
+        );
+    }
+    // What is there is this run's slopes, readable.
+    let slopes = brightpix::io::read_array(&out).unwrap();
+    assert!(slopes.shape[0] > 0, "{:?}", slopes.shape);
+    drop(device);
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// Another program that does not take the port's lock (pyserial does not;
+/// here a raw open of the pseudo-terminal, as root may) starts a session
+/// and uploads another configuration mid-stream: `stream` must not exit 0
+/// with the other configuration's slopes (issue 27 item 9).
+#[test]
+fn a_takeover_mid_stream_fails_the_stream() {
+    use brightpix_protocol::wire::{encode, tables::UploadPlan, HostMessage, MAX_FRAME_LEN};
+    use std::io::Write;
+    let dir = scratch("takeover");
+    let five = config(&dir, 5);
+    let six = brightpix::config_file::ProcessingConfig::load(config(&dir, 6)).unwrap();
+    let frames = frames(&dir, 20_000);
+    let out = dir.join("s.npy");
+    let device = InProcessDevice::start_pty().unwrap();
+    let mut child = common::brightpix()
+        .args(["stream", "--port", device.port(), "--config"])
+        .arg(&five)
+        .arg("--frames")
+        .arg(&frames)
+        .arg("--out")
+        .arg(&out)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let started = std::time::Instant::now();
+    while std::fs::metadata(&out).map_or(0, |m| m.len()) < 64 * 1024 {
+        assert!(started.elapsed().as_secs() < 60, "no slopes written");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    // The intruder writes only: its replies go to whoever reads.
+    let Ok(mut intruder) = std::fs::OpenOptions::new().write(true).open(device.port()) else {
+        eprintln!("cannot open the pseudo-terminal past its lock (not root): not tested");
+        let _ = child.kill();
+        let _ = child.wait();
+        return;
+    };
+    let mut buf = vec![0u8; MAX_FRAME_LEN];
+    // A 0x00 first ends whatever frame the link was in (PROTOCOL.md §2).
+    intruder.write_all(&[0]).unwrap();
+    let mut send = |m: &HostMessage<'_>| {
+        let n = encode(m, &mut buf).unwrap().len();
+        intruder.write_all(&buf[..n]).unwrap();
+    };
+    send(&HostMessage::hello(0x5eed));
+    let mut plan = UploadPlan::new(six.view(), 77, 256);
+    let mut scratch = vec![0u8; 4096];
+    while let Some(m) = plan.next(&mut scratch) {
+        send(&m);
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    drop(intruder);
+    let output = child.wait_with_output().unwrap();
+    let text = String::from_utf8_lossy(&output.stdout).into_owned()
+        + &String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success(), "exit 0 after a takeover:\n{text}");
+    assert!(
+        text.contains("another client took the device over"),
+        "{text}"
+    );
+    // The set says how many of its frames are the first configuration's.
+    let provenance = std::fs::read_to_string(dir.join("s.json")).unwrap();
+    assert!(provenance.contains("\"bptrust\""), "{provenance}");
+    drop(device);
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -7,7 +7,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 
 use crate::config_file::ProcessingConfig;
-use crate::io::results::complete_streamed;
+use crate::io::results::{complete_streamed, remove_stale_companions};
 use crate::io::{
     check_result_outputs, Appender, FrameSource, IoError, Layout, Provenance, Raw, Results,
     ResultsFormat,
@@ -120,6 +120,15 @@ pub fn run(args: StreamArgs) -> Result<()> {
     let mut elapsed = std::time::Duration::ZERO;
     let mut first = 0;
     let mut failure = None;
+    // The configuration the device runs as the stream starts (--config's,
+    // unless --force streams to another on purpose).
+    let expected_digest = client
+        .status()
+        .context("asking the device for its active configuration")?
+        .config_digest;
+    // Frames streamed while the device ran this configuration for certain.
+    let mut trusted = 0usize;
+    let mut taken_over = None;
     while first < total {
         let count = BATCH.min(total - first);
         let mut batch = vec![Vec::new(); count];
@@ -161,6 +170,27 @@ pub fn run(args: StreamArgs) -> Result<()> {
                 break;
             }
         }
+        // Another program on the port (one that does not take the lock:
+        // pyserial does not) can start a session and upload another
+        // configuration: the slopes would then be its configuration's. The
+        // digest is checked after every batch, so the frames before the
+        // last good check are known to be this configuration's.
+        match client.status() {
+            Ok(status) if status.config_digest == expected_digest => trusted = first + count,
+            Ok(status) => {
+                let digest = |d: Option<u32>| d.map_or("none".into(), |d| format!("{d:#010x}"));
+                taken_over = Some(format!(
+                    "the device's configuration changed during the stream (digest {}, was {}): another client took the device over; only the first {trusted} frames written are of the configuration the stream started with",
+                    digest(status.config_digest),
+                    digest(expected_digest),
+                ));
+                break;
+            }
+            Err(e) => {
+                failure = Some(e);
+                break;
+            }
+        }
         first += count;
     }
     progress.finish();
@@ -168,6 +198,9 @@ pub fn run(args: StreamArgs) -> Result<()> {
         let mut provenance = Provenance::of("brightpix stream (device)", &view, Some(&args.config));
         provenance.frames_source = Some(args.frames.display().to_string());
         provenance.config_id = client.status().ok().and_then(|s| s.config_id);
+        if taken_over.is_some() {
+            provenance.trusted_frames = Some(trusted as u64);
+        }
         let path = args.out.as_deref().unwrap_or(Path::new(""));
         let written = out.finish(path, &provenance)?;
         eprintln!(
@@ -190,6 +223,9 @@ pub fn run(args: StreamArgs) -> Result<()> {
         elapsed.as_secs_f64() * 1e6 / tally.done.max(1) as f64
     );
     invalid.warn();
+    if let Some(problem) = taken_over {
+        bail!("{problem}");
+    }
     if let Some(e) = failure {
         if args.verify {
             print_verification(&verifier, total);
@@ -304,6 +340,9 @@ impl SlopesFile {
             Layout::Pairs => vec![subapertures, 2],
             Layout::Vector => vec![2 * subapertures],
         };
+        // An earlier run's flux, validity and provenance must not stand
+        // beside this run's slopes, even if this run is killed.
+        remove_stale_companions(path)?;
         let file = match ResultsFormat::from_path(path)? {
             ResultsFormat::Csv => None,
             _ => Some(Appender::create(path, &row)?),

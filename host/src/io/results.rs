@@ -116,6 +116,10 @@ pub struct Provenance {
     /// For a rig's merged results: which board computed which
     /// sub-apertures (`board-0 0-20; board-1 21-34; ...`).
     pub rig: Option<String>,
+    /// Frames (from the first written) computed with this configuration
+    /// for certain, when the device's configuration changed during the
+    /// run (another client took it over): the rest are not.
+    pub trusted_frames: Option<u64>,
 }
 
 impl Provenance {
@@ -147,6 +151,7 @@ impl Provenance {
             frames_source: None,
             first_frame: 0,
             rig: None,
+            trusted_frames: None,
         }
     }
 
@@ -167,6 +172,7 @@ impl Provenance {
             frames_source: None,
             first_frame: 0,
             rig: None,
+            trusted_frames: None,
         }
     }
 
@@ -240,6 +246,11 @@ impl Provenance {
                 "BPRIG",
                 self.rig.clone().map(Value::Text),
                 "rig: board and its sub-apertures",
+            ),
+            (
+                "BPTRUST",
+                self.trusted_frames.map(|n| Value::Int(n as i64)),
+                "frames of this configuration; later: another's",
             ),
             (
                 "BPFIRST",
@@ -380,6 +391,26 @@ pub fn npy_set(path: &Path) -> [PathBuf; 4] {
         with(".valid.npy"),
         with(".json"),
     ]
+}
+
+/// Removes the companions of a `.npy` set (flux, validity, provenance) that
+/// an earlier run left at `path`: a set being streamed anew must never be
+/// read as one run's slopes beside another run's flux and provenance. (The
+/// slopes file itself is replaced by the new run.) Other formats are one
+/// file: nothing to do.
+pub fn remove_stale_companions(path: &Path) -> Result<(), IoError> {
+    if ResultsFormat::from_path(path)? != ResultsFormat::Npy {
+        return Ok(());
+    }
+    for companion in &npy_set(path)[1..] {
+        match std::fs::remove_file(companion) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(IoError::io(companion, e))
+            }
+            _ => {}
+        }
+    }
+    Ok(())
 }
 
 /// Every file an output path stands for (the `.npy` set, or the path).
