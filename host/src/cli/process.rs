@@ -5,7 +5,7 @@ use crate::engine_runner::HostEngine;
 use crate::io::results::stage_results;
 use crate::io::{
     check_result_outputs, stage_array, FrameShape, FrameSource, Layout, Provenance, Raw, Results,
-    Staged,
+    ResultsFormat, Staged,
 };
 use crate::parallel::ParallelEngine;
 use crate::reference::Reference;
@@ -28,14 +28,23 @@ pub struct ProcessArgs {
     /// Processing configuration (TOML, see docs/CONFIG.md).
     #[arg(long)]
     config: PathBuf,
-    /// Frames: .npy (uint8/uint16, shape (frames, height, width)) or FITS cube (the first HDU
-    /// holding an image, tile-compressed included; BSCALE/BZERO applied).
+    /// Frames: .npy (uint8/uint16, shape (frames, height, width)), FITS cube (the first HDU
+    /// holding an image, tile-compressed included; BSCALE/BZERO applied) or AOT file (the
+    /// detector pixel intensities of its Shack-Hartmann sensor, see --sensor).
     #[arg(long, value_name = "PATH")]
     frames: PathBuf,
     /// FITS HDU of the frames: an index (0: primary) or EXTNAME (default: the first image).
     #[arg(long, value_name = "HDU")]
     hdu: Option<String>,
-    /// Output: .npy (with .flux.npy, .valid.npy, .json beside it), .fits or .csv.
+    /// AOT file (.aot.fits) of several wavefront sensors: the UID of the Shack-Hartmann sensor
+    /// whose detector pixel intensities are the frames (default: the file's only sensor).
+    #[arg(long, value_name = "NAME", conflicts_with = "hdu")]
+    sensor: Option<String>,
+    /// With --out x.aot.fits: also write the frames as the detector's PIXEL_INTENSITIES.
+    #[arg(long)]
+    aot_pixels: bool,
+    /// Output: .npy (with .flux.npy, .valid.npy, .json beside it), .fits, .aot.fits (Adaptive
+    /// Optics Telemetry) or .csv.
     #[arg(long)]
     out: PathBuf,
     /// Slopes layout: pairs (frames, sub-apertures, 2) or vector (frames, 2 x sub-apertures),
@@ -73,9 +82,17 @@ pub fn run(args: ProcessArgs) -> Result<()> {
     if let Some(valid_out) = &args.valid_out {
         crate::io::FileFormat::from_path(valid_out)?;
     }
+    let aot_out = ResultsFormat::from_path(&args.out)? == ResultsFormat::Aot;
+    if args.aot_pixels && !aot_out {
+        anyhow::bail!(
+            "--aot-pixels: --out {} is not an AOT file (a name ending in .aot.fits)",
+            args.out.display()
+        );
+    }
     let config = ProcessingConfig::load(&args.config)?;
     let view = config.view();
-    let mut source = FrameSource::open_hdu(&args.frames, args.hdu.as_deref())?;
+    let mut source =
+        FrameSource::open_sensor(&args.frames, args.hdu.as_deref(), args.sensor.as_deref())?;
     source.set_camera(&view.camera)?;
     let frames = source.len();
     let subapertures = view.windows.len();
@@ -158,7 +175,18 @@ pub fn run(args: ProcessArgs) -> Result<()> {
     let mut provenance = Provenance::of(producer, &view, Some(&args.config));
     provenance.frames_source = Some(args.frames.display().to_string());
     // Every output whole, or none: stage them all, then move them in place.
-    let mut staged = stage_results(&args.out, &results, &provenance, args.layout)?;
+    let mut staged = if args.aot_pixels {
+        // Read again rather than kept: only this option pays for the memory.
+        let cube = source.read_all()?;
+        vec![crate::io::aot::stage(
+            &args.out,
+            &results,
+            &provenance,
+            Some(&cube),
+        )?]
+    } else {
+        stage_results(&args.out, &results, &provenance, args.layout)?
+    };
     if let Some(path) = &args.valid_out {
         staged.push(stage_array(path, &[frames, subapertures], &results.valid)?);
     }

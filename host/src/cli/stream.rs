@@ -344,7 +344,8 @@ impl SlopesFile {
         // beside this run's slopes, even if this run is killed.
         remove_stale_companions(path)?;
         let file = match ResultsFormat::from_path(path)? {
-            ResultsFormat::Csv => None,
+            // Written whole at the end: AOT's tables cannot grow in place.
+            ResultsFormat::Csv | ResultsFormat::Aot => None,
             _ => Some(Appender::create(path, &row)?),
         };
         Ok(SlopesFile {

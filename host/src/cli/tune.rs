@@ -41,11 +41,15 @@ pub struct TuneArgs {
     /// Name of the written configuration (`OUT/NAME.toml`).
     #[arg(long, default_value = "tuned")]
     name: String,
-    /// Recorded frames (.npy or FITS cube of the configured camera): estimate signal per
+    /// Recorded frames (.npy, FITS cube or AOT file of the configured camera): estimate signal per
     /// sub-aperture, background, read noise and spot size (r0) from them instead of the
     /// --photons, --read-noise, --background-error and --r0 options.
     #[arg(long, value_name = "PATH")]
     frames: Option<PathBuf>,
+    /// With --frames of an AOT file (.aot.fits): the UID of the Shack-Hartmann sensor whose
+    /// detector pixel intensities to read (default: the file's only sensor).
+    #[arg(long, value_name = "NAME", requires = "frames")]
+    sensor: Option<String>,
     /// Fried parameter r0 (m) at 500 nm.
     #[arg(long, default_value_t = 0.125)]
     r0: f64,
@@ -266,7 +270,11 @@ fn setup(args: &TuneArgs) -> Result<Setup> {
     let mut measured = None;
     let mut fitted_r0 = None;
     if let Some(path) = &args.frames {
-        let cube = crate::io::read_frames_for_camera(path, &config.camera)
+        let cube = crate::io::FrameSource::open_sensor(path, None, args.sensor.as_deref())
+            .and_then(|mut source| {
+                source.set_camera(&config.camera)?;
+                source.read_all()
+            })
             .with_context(|| format!("--frames {}", path.display()))?;
         let m = measure(&config, &cube, args.gain)?;
         params.read_noise_e = m.read_noise_e;

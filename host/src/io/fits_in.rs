@@ -25,23 +25,72 @@ fn cfitsio(path: &Path, what: &str, e: fitsio::errors::Error) -> IoError {
     IoError::malformed(path, format!("{what} (cfitsio: {e})"))
 }
 
+/// What HDU `index` (0-based) is, asked of cfitsio directly: the `fitsio`
+/// crate panics describing a table with variable-length columns (as AOT's
+/// tables have), so it is only asked about images.
+pub(crate) struct HduKind {
+    /// An image (tile-compressed included); else a table.
+    pub image: bool,
+    /// `EXTNAME`, trimmed (empty if none).
+    pub name: String,
+    /// Rows, for a table.
+    pub rows: i64,
+}
+
+pub(crate) fn hdu_kind(file: &mut FitsFile, index: usize) -> Option<HduKind> {
+    let (mut status, mut kind, mut rows) = (0, 0, 0i64);
+    let mut name = [0 as std::ffi::c_char; 81];
+    // SAFETY: the file is open; `name` has room for any keyword value
+    // (68 characters) and its NUL. A missing EXTNAME only sets `status`,
+    // which is then cleared.
+    unsafe {
+        let fptr = file.as_raw();
+        fitsio::sys::ffmahd(fptr, index as i32 + 1, &mut kind, &mut status);
+        fitsio::sys::ffghdt(fptr, &mut kind, &mut status);
+        if status != 0 {
+            return None;
+        }
+        fitsio::sys::ffgkys(
+            fptr,
+            c"EXTNAME".as_ptr(),
+            name.as_mut_ptr(),
+            std::ptr::null_mut(),
+            &mut status,
+        );
+        status = 0;
+        let image = kind == fitsio::sys::IMAGE_HDU as i32;
+        if !image {
+            fitsio::sys::ffgnrwll(fptr, &mut rows, &mut status);
+        }
+        let name = std::ffi::CStr::from_ptr(name.as_ptr())
+            .to_string_lossy()
+            .trim()
+            .to_string();
+        Some(HduKind { image, name, rows })
+    }
+}
+
 /// One line per HDU: index, name, kind and shape.
 fn inventory(file: &mut FitsFile) -> String {
     let count = file.num_hdus().unwrap_or(0);
     let mut lines = Vec::new();
     for index in 0..count {
-        let Ok(hdu) = file.hdu(index) else { break };
-        let name = hdu.name(file).unwrap_or_default();
-        let kind = match &hdu.info {
-            HduInfo::ImageInfo { shape, .. } if shape.is_empty() => "no data".to_string(),
-            HduInfo::ImageInfo { shape, .. } => format!("image {}", shape_string(shape)),
-            HduInfo::TableInfo { num_rows, .. } => format!("table of {num_rows} rows"),
-            HduInfo::AnyInfo => "other".to_string(),
+        let Some(h) = hdu_kind(file, index) else {
+            break;
         };
-        let name = if name.is_empty() {
+        let kind = if h.image {
+            match file.hdu(index).map(|hdu| hdu.info) {
+                Ok(HduInfo::ImageInfo { shape, .. }) if shape.is_empty() => "no data".to_string(),
+                Ok(HduInfo::ImageInfo { shape, .. }) => format!("image {}", shape_string(&shape)),
+                _ => "other".to_string(),
+            }
+        } else {
+            format!("table of {} rows", h.rows)
+        };
+        let name = if h.name.is_empty() {
             String::new()
         } else {
-            format!(" '{name}'")
+            format!(" '{}'", h.name)
         };
         lines.push(format!("{index}{name}: {kind}"));
     }
@@ -106,9 +155,8 @@ pub(crate) fn open_image(path: &Path, hdu: Option<&str>) -> Result<FitsImage, Io
                 Ok(index) if index < count => Some(index),
                 Ok(_) => None,
                 Err(_) => (0..count).find(|&i| {
-                    file.hdu(i)
-                        .and_then(|h| h.name(&mut file))
-                        .is_ok_and(|name| name.trim().eq_ignore_ascii_case(wanted.trim()))
+                    hdu_kind(&mut file, i)
+                        .is_some_and(|h| h.name.eq_ignore_ascii_case(wanted.trim()))
                 }),
             };
             found.ok_or_else(|| {
@@ -121,10 +169,11 @@ pub(crate) fn open_image(path: &Path, hdu: Option<&str>) -> Result<FitsImage, Io
         }
         None => {
             let image = |file: &mut FitsFile, i: usize, with_data: bool| {
-                file.hdu(i).is_ok_and(|h| {
-                    matches!(&h.info, HduInfo::ImageInfo { shape, .. }
+                hdu_kind(file, i).is_some_and(|h| h.image)
+                    && file.hdu(i).is_ok_and(|h| {
+                        matches!(&h.info, HduInfo::ImageInfo { shape, .. }
                         if !shape.is_empty() && (!with_data || shape.iter().all(|&d| d > 0)))
-                })
+                    })
             };
             // The first image with data; else the first with axes (an
             // empty cube is still a cube).
@@ -143,15 +192,24 @@ pub(crate) fn open_image(path: &Path, hdu: Option<&str>) -> Result<FitsImage, Io
                 })?
         }
     };
+    let kind = hdu_kind(&mut file, index).ok_or_else(|| {
+        IoError::malformed(path, format!("HDU {index}: cfitsio cannot move to it"))
+    })?;
+    let describe = if kind.name.is_empty() {
+        format!("HDU {index}")
+    } else {
+        format!("HDU {index} ('{}')", kind.name)
+    };
+    if !kind.image {
+        return Err(IoError::unexpected(
+            path,
+            format!("{describe} is a table"),
+            "an image HDU",
+        ));
+    }
     let h = file
         .hdu(index)
         .map_err(|e| cfitsio(path, "cannot move to the HDU", e))?;
-    let name = h.name(&mut file).unwrap_or_default();
-    let describe = if name.is_empty() {
-        format!("HDU {index}")
-    } else {
-        format!("HDU {index} ('{}')", name.trim())
-    };
     let (shape, image_type) = match &h.info {
         HduInfo::ImageInfo { shape, image_type } => (shape.clone(), *image_type),
         _ => {

@@ -16,6 +16,7 @@
 //! with `NAXIS1` = width, `NAXIS2` = height, `NAXIS3` = frames has shape
 //! `[frames, height, width]`.
 
+pub mod aot;
 pub mod fits;
 mod fits_in;
 mod fits_out;
@@ -380,7 +381,41 @@ impl FrameSource {
     /// (an index, 0 the primary, or an `EXTNAME`) instead of the first HDU
     /// holding an image. Tile-compressed images are read like any other.
     pub fn open_hdu(path: impl AsRef<Path>, hdu: Option<&str>) -> Result<Self, IoError> {
+        Self::open_sensor(path, hdu, None)
+    }
+
+    /// [`FrameSource::open_hdu`]; an AOT file (see [`aot`]) without `hdu`
+    /// gives the detector pixel intensities of its Shack-Hartmann sensor
+    /// `sensor` (a `UID`; `None`: the file's only sensor). `sensor` for any
+    /// other file, or with `hdu`, is an error.
+    pub fn open_sensor(
+        path: impl AsRef<Path>,
+        hdu: Option<&str>,
+        sensor: Option<&str>,
+    ) -> Result<Self, IoError> {
         let path = path.as_ref();
+        let fits = FileFormat::from_path(path)? == FileFormat::Fits;
+        if fits && hdu.is_none() {
+            if let Some(at) = aot::locate_pixels(path, sensor)? {
+                return Self::open_image(&at.file, at.hdu.as_deref());
+            }
+        }
+        if let Some(name) = sensor {
+            return Err(IoError::unexpected(
+                path,
+                if hdu.is_some() {
+                    format!("--sensor {name} with --hdu")
+                } else {
+                    format!("--sensor {name} for a file that is not AOT (no AOT-VERS keyword)")
+                },
+                "--sensor only for an AOT file, without --hdu",
+            ));
+        }
+        Self::open_image(path, hdu)
+    }
+
+    /// Opens the frames of `hdu` in `path` (`.npy`, or any FITS image).
+    fn open_image(path: &Path, hdu: Option<&str>) -> Result<Self, IoError> {
         let format = FileFormat::from_path(path)?;
         if hdu.is_some() && format != FileFormat::Fits {
             return Err(IoError::unexpected(

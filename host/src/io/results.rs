@@ -10,7 +10,10 @@
 //!   whose header holds the provenance keywords, and the image extensions
 //!   `SLOPES`, `FLUX`, `VALID`, each with `BUNIT`;
 //! - `.csv`: one row per frame and sub-aperture, after `#` lines holding
-//!   the provenance.
+//!   the provenance;
+//! - `.aot.fits`: the Adaptive Optics Telemetry standard (AOT), one
+//!   Shack-Hartmann sensor with its geometry, measurements and time
+//!   ([`super::aot`]).
 //!
 //! Slopes are float64 pixels, `[x, y]` reference slopes subtracted, in the
 //! [`Layout`] asked for; flux is float64 counts (calibrated, above the
@@ -22,7 +25,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use brightpix_protocol::wire::tables::config_digest;
-use brightpix_protocol::{Config, PixelCount, SelectionRule};
+use brightpix_protocol::{Config, PixelCount, SelectionRule, SubapertureWindow};
 
 use super::output::Staged;
 use super::{npy, IoError};
@@ -66,10 +69,15 @@ pub enum ResultsFormat {
     Npy,
     Fits,
     Csv,
+    /// A FITS file in the AOT layout: a name ending in `.aot.fits`.
+    Aot,
 }
 
 impl ResultsFormat {
     pub fn from_path(path: &Path) -> Result<Self, IoError> {
+        if super::aot::is_aot_name(path) {
+            return Ok(ResultsFormat::Aot);
+        }
         let ext = path
             .extension()
             .and_then(|e| e.to_str())
@@ -81,7 +89,7 @@ impl ResultsFormat {
             _ => Err(IoError::unexpected(
                 path,
                 "an output of unknown type",
-                "a .npy (with .flux.npy, .valid.npy and .json beside it), .fits/.fit/.fts or .csv path",
+                "a .npy (with .flux.npy, .valid.npy and .json beside it), .fits/.fit/.fts, .aot.fits (AOT) or .csv path",
             )),
         }
     }
@@ -120,6 +128,14 @@ pub struct Provenance {
     /// for certain, when the device's configuration changed during the
     /// run (another client took it over): the rest are not.
     pub trusted_frames: Option<u64>,
+    /// The calibration applied ("background map; gain map; threshold 3
+    /// counts"), if the configuration is known.
+    pub calibration: Option<String>,
+    /// The sub-aperture windows, in output order (AOT's sensor geometry);
+    /// empty when the configuration is not known.
+    pub windows: Vec<SubapertureWindow>,
+    /// Reference slopes `[x, y]` in 2^-16 pixel, one per window, if any.
+    pub reference_slopes: Option<Vec<[i32; 2]>>,
 }
 
 impl Provenance {
@@ -152,6 +168,9 @@ impl Provenance {
             first_frame: 0,
             rig: None,
             trusted_frames: None,
+            calibration: Some(calibration_text(config)),
+            windows: config.windows.to_vec(),
+            reference_slopes: config.centroid.reference_slopes.map(<[_]>::to_vec),
         }
     }
 
@@ -173,6 +192,9 @@ impl Provenance {
             first_frame: 0,
             rig: None,
             trusted_frames: None,
+            calibration: None,
+            windows: Vec::new(),
+            reference_slopes: None,
         }
     }
 
@@ -277,6 +299,26 @@ impl Provenance {
         all.into_iter()
             .map(|(k, v, c)| (k, v.unwrap_or(Value::Int(0)), c))
             .collect()
+    }
+}
+
+/// What the calibration of `config` does, in words and counts.
+fn calibration_text(config: &Config<'_>) -> String {
+    let c = &config.calibration;
+    let mut parts = Vec::new();
+    if c.background.is_some() {
+        parts.push("background map".to_string());
+    }
+    if c.gain.is_some() {
+        parts.push("gain map".to_string());
+    }
+    if let Some(t) = c.threshold {
+        parts.push(format!("threshold {} counts", f64::from(t) / 16.0));
+    }
+    if parts.is_empty() {
+        "none".into()
+    } else {
+        parts.join("; ")
     }
 }
 
@@ -450,7 +492,7 @@ pub fn write_results(
 }
 
 /// [`write_results`] into temporary files, for the caller to commit with
-/// its other outputs.
+/// its other outputs. AOT's measurements have one shape, whatever `layout`.
 pub fn stage_results(
     path: &Path,
     results: &Results,
@@ -475,6 +517,7 @@ pub fn stage_results(
             super::fits_out::write_results(t, &keywords, &shape, &slopes, results)
         })?],
         ResultsFormat::Csv => vec![Staged::write(path, |t| write_csv(t, &keywords, results))?],
+        ResultsFormat::Aot => vec![super::aot::stage(path, results, provenance, None)?],
     })
 }
 
@@ -502,7 +545,9 @@ pub fn complete_streamed(
             ])
         }
         ResultsFormat::Fits => super::fits_out::add_to_streamed(path, &keywords, results),
-        ResultsFormat::Csv => write_results(path, results, provenance, layout).map(drop),
+        ResultsFormat::Csv | ResultsFormat::Aot => {
+            write_results(path, results, provenance, layout).map(drop)
+        }
     }
 }
 
