@@ -36,6 +36,7 @@ from ._brightpix import (
     __version__,
     centroid,
     process,
+    read_frames,
     simulate,
 )
 
@@ -55,6 +56,7 @@ __all__ = [
     "__version__",
     "centroid",
     "process",
+    "read_frames",
     "simulate",
     "simulated_device",
 ]

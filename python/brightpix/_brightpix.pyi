@@ -104,6 +104,9 @@ def process(
     reference: bool = False,
     threads: int | None = None,
 ) -> Result: ...
+def read_frames(
+    path: StrPath, *, sensor: str | None = None, hdu: str | None = None
+) -> npt.NDArray[np.uint16]: ...
 def centroid(
     image: npt.NDArray[Any],
     n: int,

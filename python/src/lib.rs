@@ -9,6 +9,7 @@ mod arrays;
 mod config;
 mod device;
 mod errors;
+mod frames;
 mod process;
 mod rig;
 mod simulate;
@@ -27,6 +28,7 @@ fn _brightpix(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(process::_result_from_arrays, m)?)?;
     m.add_function(wrap_pyfunction!(process::process, m)?)?;
     m.add_function(wrap_pyfunction!(process::centroid, m)?)?;
+    m.add_function(wrap_pyfunction!(frames::read_frames, m)?)?;
     m.add_class::<device::PyDevice>()?;
     m.add_class::<device::PySimulatedDevice>()?;
     m.add_class::<rig::PyRig>()?;

@@ -259,7 +259,9 @@ impl PyResultSet {
     ///   (provenance);
     /// - ``x.fits`` (``.fit``, ``.fts``): ``SLOPES``, ``FLUX`` and ``VALID``
     ///   image extensions, provenance keywords in the primary header;
-    /// - ``x.csv``: one row per frame and sub-aperture.
+    /// - ``x.csv``: one row per frame and sub-aperture;
+    /// - ``x.aot.fits``: Adaptive Optics Telemetry (AOT), one Shack-Hartmann
+    ///   sensor with the configuration's geometry (``aotpy`` reads it).
     ///
     /// ``layout``: ``"pairs"`` (slopes ``(F, S, 2)``) or ``"vector"``
     /// (``(F, 2S)``, ``[x_0..x_S-1, y_0..y_S-1]`` per frame, as AO codes take

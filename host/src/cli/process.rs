@@ -17,11 +17,12 @@ use std::time::Instant;
 #[derive(Args)]
 #[command(
     about = "Compute slopes, flux and validity from recorded frames (.npy or FITS cube) into .npy, FITS or CSV",
-    after_help = "Examples:\n  brightpix process --config examples/canary.toml --frames frames.fits --out slopes.npy\n  brightpix process --config examples/canary.toml --frames frames.npy --out ref.fits --reference\n  brightpix process --config examples/canary.toml --frames frames.npy --out slopes.npy --layout vector\n  brightpix process --config examples/canary.toml --frames frames.npy --out slopes.csv\n\n\
+    after_help = "Examples:\n  brightpix process --config examples/canary.toml --frames frames.fits --out slopes.npy\n  brightpix process --config examples/canary.toml --frames frames.npy --out ref.fits --reference\n  brightpix process --config examples/canary.toml --frames frames.npy --out slopes.npy --layout vector\n  brightpix process --config examples/canary.toml --frames frames.npy --out slopes.csv\n  brightpix process --config examples/canary.toml --frames telemetry.aot.fits --sensor WFS1 --out slopes.aot.fits\n\n\
 Slopes are float64 pixels, [x, y], reference slopes subtracted, 0.0 for invalid sub-apertures\n\
 (flux at or below min_flux); flux is float64 counts; validity 0/1. --out x.npy writes x.npy,\n\
 x.flux.npy, x.valid.npy and x.json (provenance); x.fits one file with SLOPES, FLUX and VALID\n\
-extensions and provenance keywords; x.csv one row per frame and sub-aperture (docs/OUTPUTS.md).\n\
+extensions and provenance keywords; x.csv one row per frame and sub-aperture; x.aot.fits\n\
+Adaptive Optics Telemetry (docs/OUTPUTS.md).\n\
 Engine and reference give identical numbers (see shared/SPEC.md)."
 )]
 pub struct ProcessArgs {

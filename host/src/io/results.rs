@@ -241,6 +241,11 @@ impl Provenance {
                 self.bit_depth.map(|b| Value::Int(b.into())),
                 "camera bit depth",
             ),
+            (
+                "BPCALIB",
+                self.calibration.clone().map(Value::Text),
+                "calibration applied",
+            ),
             ("BPCFGID", hex(self.config_id), "device's configuration id"),
             (
                 "BPCFGDIG",
