@@ -125,7 +125,7 @@ fn stream_out_has_flux_validity_and_provenance_in_every_format() {
     ]);
     assert!(ok, "{text}");
     let want_flux = brightpix::io::read_array(dir.join("ref.flux.npy")).unwrap();
-    for ext in ["npy", "fits", "csv"] {
+    for ext in ["npy", "fits", "csv", "aot.fits"] {
         let out = dir.join(format!("s.{ext}"));
         let (ok, text) = run(&[
             "stream",
@@ -163,6 +163,25 @@ fn stream_out_has_flux_validity_and_provenance_in_every_format() {
                 let slopes: Vec<f64> = named.read_image(&mut file).unwrap();
                 assert_eq!(slopes, brightpix::io::read_array(&reference).unwrap().data);
                 let hdu = file.hdu("FLUX").unwrap();
+                let flux: Vec<f64> = hdu.read_image(&mut file).unwrap();
+                assert_eq!(flux, want_flux.data);
+            }
+            "aot.fits" => {
+                // Written whole at the end: AOT's (frames, 2, sub-apertures).
+                let mut file = fitsio::FitsFile::open(&out).unwrap();
+                let primary = file.primary_hdu().unwrap();
+                let version: String = primary.read_key(&mut file, "AOT-VERS").unwrap();
+                assert_eq!(version, "2.0.0");
+                let hdu = file.hdu("MEASUREMENTS").unwrap();
+                let measured: Vec<f64> = hdu.read_image(&mut file).unwrap();
+                let pairs = brightpix::io::read_array(&reference).unwrap().data;
+                let vector: Vec<f64> = pairs
+                    .chunks(8)
+                    .flat_map(|f| (0..2).flat_map(move |axis| f.iter().skip(axis).step_by(2)))
+                    .copied()
+                    .collect();
+                assert_eq!(measured, vector);
+                let hdu = file.hdu("SUBAPERTURE_INTENSITIES").unwrap();
                 let flux: Vec<f64> = hdu.read_image(&mut file).unwrap();
                 assert_eq!(flux, want_flux.data);
             }

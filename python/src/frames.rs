@@ -32,9 +32,7 @@ pub fn read_frames<'py>(
     hdu: Option<String>,
 ) -> PyResult<Bound<'py, PyAny>> {
     let cube = py
-        .detach(|| {
-            FrameSource::open_sensor(&path, hdu.as_deref(), sensor.as_deref())?.read_all()
-        })
+        .detach(|| FrameSource::open_sensor(&path, hdu.as_deref(), sensor.as_deref())?.read_all())
         .map_err(io_file_error)?;
     let s = cube.shape;
     to_numpy(py, cube.pixels, &[s.frames, s.height, s.width])

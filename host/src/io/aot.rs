@@ -1244,6 +1244,21 @@ mod tests {
         );
         // The frames come back as the sensor's pixels.
         assert_eq!(read_frames(&path).unwrap(), cube(2));
+        // Its tables (variable-length columns) are named or skipped, never
+        // described by the fitsio crate, which would panic.
+        let err = FrameSource::open_hdu(&path, Some("AOT_TIME")).unwrap_err();
+        assert!(err.to_string().contains("('AOT_TIME') is a table"), "{err}");
+        let err = FrameSource::open_hdu(&path, Some("NOPE")).unwrap_err();
+        assert!(
+            err.to_string().contains("1 'AOT_TIME': table of 1 rows"),
+            "{err}"
+        );
+        assert_eq!(
+            FrameSource::open_hdu(&path, Some("PIXEL_INTENSITIES"))
+                .unwrap()
+                .len(),
+            2
+        );
         let at = locate_pixels(&path, Some("wfs")).unwrap().unwrap();
         assert_eq!(
             (at.sensor.as_str(), at.hdu.as_deref()),
