@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use brightpix_protocol::wire::DeviceError;
+use brightpix_protocol::wire::{CameraInterface, DeviceError};
 use clap::Args;
 
 use crate::config_file::ProcessingConfig;
@@ -170,6 +170,13 @@ pub fn run(args: CaptureArgs) -> Result<()> {
             .unwrap_or_default()
     );
     invalid.warn();
+    // The board's camera counters run since boot: what this capture added.
+    let after = client.status().ok();
+    if let Some(line) = after.and_then(|a| {
+        camera_counters_during(status.health.camera_interface, a.health.camera_interface)
+    }) {
+        eprintln!("brightpix: {line}");
+    }
     if let (Some(verifier), Some(config)) = (&mut verifier, &config) {
         let last = outcomes
             .iter()
@@ -205,4 +212,45 @@ pub fn run(args: CaptureArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The camera interface's counters during a capture (`after - before`),
+/// for a board that reports them.
+fn camera_counters_during(
+    before: Option<CameraInterface>,
+    after: Option<CameraInterface>,
+) -> Option<String> {
+    let (b, a) = (before?, after?);
+    Some(format!(
+        "camera interface during this capture: overruns {}, sync errors {}, DMA transfer errors {}, DMA FIFO errors {}, FIFO not drained at frame end {}",
+        a.overruns.wrapping_sub(b.overruns),
+        a.sync_errors.wrapping_sub(b.sync_errors),
+        a.dma_transfer_errors.wrapping_sub(b.dma_transfer_errors),
+        a.dma_fifo_errors.wrapping_sub(b.dma_fifo_errors),
+        a.fifo_not_drained.wrapping_sub(b.fifo_not_drained),
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn camera_counters_are_the_captures_own() {
+        let at = |overruns, fifo| CameraInterface {
+            overruns,
+            sync_errors: 0,
+            dma_transfer_errors: 0,
+            dma_fifo_errors: 1,
+            fifo_not_drained: fifo,
+        };
+        let line = camera_counters_during(Some(at(7, 2)), Some(at(9, 2))).unwrap();
+        assert!(
+            line.contains("overruns 2,")
+                && line.contains("DMA FIFO errors 0,")
+                && line.ends_with("frame end 0"),
+            "{line}"
+        );
+        assert_eq!(camera_counters_during(None, Some(at(1, 1))), None);
+    }
 }
