@@ -233,9 +233,11 @@ fn plan_check_and_stream_from_the_command_line() {
     let (ok, text) = run(&["rig", "check", "--rig", rig_file.to_str().unwrap()]);
     assert!(ok && text.contains("board-2"), "{text}");
 
-    let pixels: Vec<u16> = frames(12).concat();
+    // More frames than one batch (256): the merge and the reference go on
+    // across batches.
+    let pixels: Vec<u16> = frames(600).concat();
     let frames_file = dir.join("frames.npy");
-    write_array(&frames_file, &[12, 48, 48], &pixels).unwrap();
+    write_array(&frames_file, &[600, 48, 48], &pixels).unwrap();
     let devices: Vec<InProcessDevice> = (0..3)
         .map(|_| InProcessDevice::start_pty().unwrap())
         .collect();
@@ -260,7 +262,7 @@ fn plan_check_and_stream_from_the_command_line() {
     ]);
     assert!(ok, "{text}");
     assert!(
-        text.contains("verified: 12 merged frames") && text.contains("0 mismatches"),
+        text.contains("verified: 600 merged frames") && text.contains("0 mismatches"),
         "{text}"
     );
     // The merged file equals `process` on the whole camera.
@@ -314,4 +316,32 @@ fn demo_with_three_boards() {
             && text.contains("PASS"),
         "{text}"
     );
+}
+
+/// In batches (as `rig stream` reads a file): a board that disappears
+/// between two batches is left out of the later ones, its sub-apertures
+/// without results there, while the others' results go on bit for bit.
+#[test]
+fn batches_go_on_without_a_board_that_disappeared() {
+    let rig = rig_of(3);
+    let (devices, mut clients) = devices(&rig);
+    rig::configure(&rig, &mut clients).unwrap();
+    let frames = frames(30);
+    let mut merged = Vec::new();
+    let mut on_frame = |m: &rig::MergedFrame| merged.push(m.clone());
+    let mut stream = rig::RigStream::new(&rig, false);
+    stream.run(&mut clients, &frames[..10], 0, &mut on_frame);
+    let mut devices: Vec<Option<InProcessDevice>> = devices.into_iter().map(Some).collect();
+    devices[1] = None;
+    stream.run(&mut clients, &frames[10..20], 10, &mut on_frame);
+    stream.run(&mut clients, &frames[20..], 20, &mut on_frame);
+    let run = stream.finish(&mut on_frame);
+    let order: Vec<u32> = merged.iter().map(|m| m.frame).collect();
+    assert_eq!(order, (0..30).collect::<Vec<_>>());
+    assert!(merged[..10].iter().all(|m| m.missing_boards.is_empty()));
+    assert!(merged[10..].iter().all(|m| m.missing_boards == [1]));
+    assert!(run.boards[1].error.is_some());
+    assert_eq!(run.boards[0].counts.frames_done, 30);
+    assert_eq!((run.frames_complete, run.frames_partial), (10, 20));
+    check_present(&rig, &frames, &merged);
 }

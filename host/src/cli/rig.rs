@@ -17,7 +17,7 @@ use crate::io::{
 };
 use crate::link::{Client, PixelSink};
 use crate::rig::{
-    self, describe_load, BoardKind, CostModel, Rig, RigRun, DCMI_MAX_PIXEL_CLOCK_HZ,
+    self, describe_load, BoardKind, CostModel, Rig, RigRun, RigStream, DCMI_MAX_PIXEL_CLOCK_HZ,
     USB_FULL_SPEED_BYTES_PER_S,
 };
 use crate::sim_device::{InProcessDevice, QemuCpu, QemuDevice, QemuOptions};
@@ -308,10 +308,6 @@ fn stream(args: StreamArgs) -> Result<()> {
     let mut source = FrameSource::open_hdu(&args.frames, args.hdu.as_deref())?;
     source.set_camera(&rig.whole.camera)?;
     let total = args.count.unwrap_or(usize::MAX).min(source.len());
-    let mut frames = vec![Vec::new(); total];
-    for (k, frame) in frames.iter_mut().enumerate() {
-        source.read_frame_into(k, frame)?;
-    }
     let mut clients = open_clients(&rig, &args.rig.ports)?;
     if args.no_configure {
         rig::check_configurations(&rig, &mut clients)?;
@@ -319,7 +315,15 @@ fn stream(args: StreamArgs) -> Result<()> {
         rig::configure(&rig, &mut clients)?;
     }
     let source_name = args.frames.display().to_string();
-    let outcome = run_and_report(&rig, clients, &frames, args.verify, 10)?;
+    // Read and streamed in batches: a cube of any length goes through.
+    let read = |first: usize, count: usize| -> Result<Vec<Vec<u16>>> {
+        let mut batch = vec![Vec::new(); count];
+        for (k, frame) in batch.iter_mut().enumerate() {
+            source.read_frame_into(first + k, frame)?;
+        }
+        Ok(batch)
+    };
+    let outcome = run_and_report(&rig, &mut clients, total, read, args.verify, 10)?;
     if let Some(out) = &args.out {
         let mut provenance = Provenance::of(
             "brightpix rig stream (merged from the boards)",
@@ -372,19 +376,24 @@ impl Outcome {
     }
 }
 
-/// Streams, merges and prints a report: per board its rate and counts,
-/// and the merge's totals (and the verification's).
+/// Frames read and streamed at a time.
+const BATCH: usize = 256;
+
+/// Streams `total` frames, `read(first, count)` a batch at a time, merges
+/// and prints a report: per board its rate and counts, and the merge's
+/// totals (and the verification's).
 pub(super) fn run_and_report(
     rig: &Rig,
-    clients: Vec<Client>,
-    frames: &[Vec<u16>],
+    clients: &mut [Client],
+    total: usize,
+    mut read: impl FnMut(usize, usize) -> Result<Vec<Vec<u16>>>,
     verify: bool,
     show: usize,
 ) -> Result<Outcome> {
     let subapertures = rig.whole.windows.len();
     let mut results = Results::new(subapertures);
-    let progress = super::progress::Progress::new(frames.len() as u64, "frames");
-    let run = rig::stream(rig, clients, frames, 0, verify, |m| {
+    let progress = super::progress::Progress::new(total as u64, "frames");
+    let mut on_frame = |m: &rig::MergedFrame| {
         for r in &m.results {
             results.push(r.map(|e| Raw {
                 slope_x: e.slope_x,
@@ -394,7 +403,16 @@ pub(super) fn run_and_report(
             }));
         }
         progress.inc(1);
-    });
+    };
+    let mut stream = RigStream::new(rig, verify);
+    let mut first = 0;
+    while first < total {
+        let count = BATCH.min(total - first);
+        let batch = read(first, count)?;
+        stream.run(clients, &batch, first as u32, &mut on_frame);
+        first += count;
+    }
+    let run = stream.finish(&mut on_frame);
     progress.finish();
     for (board, r) in rig.boards.iter().zip(&run.boards) {
         println!(
@@ -503,7 +521,8 @@ pub(super) fn demo(
         started.elapsed().as_secs_f64()
     );
     print_rig(&rig, None);
-    let outcome = run_and_report(&rig, clients, frames, true, 10)?;
+    let read = |first: usize, count: usize| Ok(frames[first..first + count].to_vec());
+    let outcome = run_and_report(&rig, &mut clients, frames.len(), read, true, 10)?;
     outcome.verdict(true, frames.len())?;
     println!(
         "PASS: all {} merged frames bit-identical to the whole-camera reference",

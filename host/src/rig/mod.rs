@@ -27,4 +27,6 @@ pub use plan::{
     loads, plan, plan_keeping_up, BoardKind, BoardLoad, BoardShare, CostModel, Cut, Plan,
     PlanError, DCMI_MAX_PIXEL_CLOCK_HZ, SLOPE_ENTRY_MAX_BYTES, USB_FULL_SPEED_BYTES_PER_S,
 };
-pub use run::{check_configurations, configure, stream, BoardRun, RigRun, RigStartError};
+pub use run::{
+    check_configurations, configure, stream, BoardRun, RigRun, RigStartError, RigStream,
+};

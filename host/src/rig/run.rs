@@ -93,104 +93,172 @@ pub struct RigRun {
 
 enum Event {
     Outcome(usize, FrameOutcome),
-    Gone(usize, StreamReport, Option<LinkError>),
+    Ended(usize, Result<StreamReport, LinkError>),
+}
+
+/// A rig run in batches: each [`RigStream::run`] streams some frames (a
+/// batch read from a file) to every board still running, merges and
+/// verifies them; [`RigStream::finish`] gives the totals. The merge by
+/// frame number and the whole-camera reference (its level filters) go on
+/// from batch to batch; a board that failed is left out of later batches,
+/// its sub-apertures without results there.
+pub struct RigStream<'r> {
+    rig: &'r Rig,
+    merger: Merger,
+    verifier: Option<Verifier>,
+    reports: Vec<StreamReport>,
+    errors: Vec<Option<LinkError>>,
+    complete: u64,
+    partial: u64,
+    started: Instant,
+}
+
+impl<'r> RigStream<'r> {
+    /// With `verify`, a whole-camera reference checks every complete frame
+    /// (a partial one counts as dropped).
+    pub fn new(rig: &'r Rig, verify: bool) -> Self {
+        let maps = rig.boards.iter().map(|b| b.windows.clone()).collect();
+        RigStream {
+            rig,
+            merger: Merger::new(maps, rig.whole.windows.len()),
+            verifier: verify.then(|| {
+                Verifier::new(&rig.whole.view(), 10).expect("a loaded rig's configuration is valid")
+            }),
+            reports: vec![StreamReport::default(); rig.boards.len()],
+            errors: (0..rig.boards.len()).map(|_| None).collect(),
+            complete: 0,
+            partial: 0,
+            started: Instant::now(),
+        }
+    }
+
+    /// Streams `frames` (whole camera frames, numbered from `first_frame`)
+    /// to the boards still running, one client each (in board order), in
+    /// parallel; every merged frame goes to `on_frame` in frame order.
+    pub fn run(
+        &mut self,
+        clients: &mut [Client],
+        frames: &[Vec<u16>],
+        first_frame: u32,
+        on_frame: &mut impl FnMut(&MergedFrame),
+    ) {
+        let width = self.rig.whole.camera.width as usize;
+        for k in 0..frames.len() {
+            self.merger.expect(first_frame.wrapping_add(k as u32));
+        }
+        let rig = self.rig;
+        let running: Vec<bool> = self.errors.iter().map(Option::is_none).collect();
+        std::thread::scope(|scope| {
+            let (tx, rx) = mpsc::channel();
+            for (b, client) in clients.iter_mut().enumerate() {
+                if !running[b] {
+                    continue;
+                }
+                let tx = tx.clone();
+                let rectangle = rig.boards[b].rectangle;
+                scope.spawn(move || {
+                    let cropped = frames.iter().map(|f| rectangle.crop(f, width));
+                    let result = client.stream_frames(first_frame, cropped, |o| {
+                        let _ = tx.send(Event::Outcome(b, o));
+                    });
+                    let _ = tx.send(Event::Ended(b, result));
+                });
+            }
+            drop(tx);
+            for event in rx {
+                let merged = match event {
+                    Event::Outcome(b, o) => self.merger.add(b, o),
+                    Event::Ended(b, Ok(report)) => {
+                        let total = &mut self.reports[b];
+                        total.frames_sent += report.frames_sent;
+                        total.frames_done += report.frames_done;
+                        total.frames_dropped += report.frames_dropped;
+                        total.pixel_bytes += report.pixel_bytes;
+                        total.elapsed += report.elapsed;
+                        Vec::new()
+                    }
+                    // Frames it never sent wait for it no longer, here or later.
+                    Event::Ended(b, Err(e)) => {
+                        self.errors[b] = Some(e);
+                        self.merger.board_gone(b)
+                    }
+                };
+                self.deliver(merged, Some((frames, first_frame)), on_frame);
+            }
+        });
+    }
+
+    fn deliver(
+        &mut self,
+        merged: Vec<MergedFrame>,
+        pixels: Option<(&[Vec<u16>], u32)>,
+        on_frame: &mut impl FnMut(&MergedFrame),
+    ) {
+        for m in merged {
+            let frame =
+                pixels.and_then(|(frames, first)| frames.get(m.frame.wrapping_sub(first) as usize));
+            let outcome = m.as_outcome();
+            if outcome.is_some() {
+                self.complete += 1;
+            } else {
+                self.partial += 1;
+            }
+            if let Some(v) = self.verifier.as_mut() {
+                match (frame, outcome) {
+                    (Some(pixels), Some(outcome)) => {
+                        v.check(pixels, &outcome);
+                    }
+                    (Some(pixels), None) => {
+                        let dropped = FrameOutcome::Incomplete(FrameSlopes {
+                            frame: m.frame,
+                            ..FrameSlopes::default()
+                        });
+                        v.check(pixels, &dropped);
+                    }
+                    (None, _) => v.missing(),
+                }
+            }
+            on_frame(&m);
+        }
+    }
+
+    /// Frames still awaited (none unless a board ended without an outcome
+    /// for a frame it was sent) merged with what arrived, and the totals.
+    pub fn finish(mut self, on_frame: &mut impl FnMut(&MergedFrame)) -> RigRun {
+        let rest = self.merger.finish();
+        self.deliver(rest, None, on_frame);
+        let boards = self
+            .reports
+            .into_iter()
+            .zip(self.errors)
+            .zip(&self.merger.counts)
+            .map(|((report, error), &counts)| BoardRun {
+                report,
+                error,
+                counts,
+            })
+            .collect();
+        RigRun {
+            boards,
+            frames_complete: self.complete,
+            frames_partial: self.partial,
+            verifier: self.verifier,
+            elapsed: self.started.elapsed(),
+        }
+    }
 }
 
 /// Streams `frames` (whole camera frames, numbered from `first_frame`) to
-/// the rig's boards, one client each, in parallel; every merged frame goes
-/// to `on_frame` in frame order. With `verify`, a whole-camera reference
-/// checks every complete frame (a partial one counts as dropped).
+/// the rig's boards in one batch ([`RigStream`]).
 pub fn stream(
     rig: &Rig,
-    clients: Vec<Client>,
+    mut clients: Vec<Client>,
     frames: &[Vec<u16>],
     first_frame: u32,
     verify: bool,
     mut on_frame: impl FnMut(&MergedFrame),
 ) -> RigRun {
-    let started = Instant::now();
-    let width = rig.whole.camera.width as usize;
-    let maps = rig.boards.iter().map(|b| b.windows.clone()).collect();
-    let mut merger = Merger::new(maps, rig.whole.windows.len());
-    for k in 0..frames.len() {
-        merger.expect(first_frame.wrapping_add(k as u32));
-    }
-    let mut verifier = verify.then(|| {
-        Verifier::new(&rig.whole.view(), 10).expect("a loaded rig's configuration is valid")
-    });
-    let mut reports: Vec<Option<(StreamReport, Option<LinkError>)>> =
-        (0..rig.boards.len()).map(|_| None).collect();
-    let (mut complete, mut partial) = (0u64, 0u64);
-    let mut deliver = |merged: Vec<MergedFrame>| {
-        for m in merged {
-            let index = m.frame.wrapping_sub(first_frame) as usize;
-            match m.as_outcome() {
-                Some(outcome) => {
-                    complete += 1;
-                    if let Some(v) = verifier.as_mut() {
-                        v.check(&frames[index], &outcome);
-                    }
-                }
-                None => {
-                    partial += 1;
-                    if let Some(v) = verifier.as_mut() {
-                        let dropped = FrameOutcome::Incomplete(FrameSlopes {
-                            frame: m.frame,
-                            ..FrameSlopes::default()
-                        });
-                        v.check(&frames[index], &dropped);
-                    }
-                }
-            }
-            on_frame(&m);
-        }
-    };
-    std::thread::scope(|scope| {
-        let (tx, rx) = mpsc::channel();
-        for (b, mut client) in clients.into_iter().enumerate() {
-            let tx = tx.clone();
-            let rectangle = rig.boards[b].rectangle;
-            scope.spawn(move || {
-                let cropped = frames.iter().map(|f| rectangle.crop(f, width));
-                let result = client.stream_frames(first_frame, cropped, |o| {
-                    let _ = tx.send(Event::Outcome(b, o));
-                });
-                let (report, error) = match result {
-                    Ok(report) => (report, None),
-                    Err(e) => (StreamReport::default(), Some(e)),
-                };
-                let _ = tx.send(Event::Gone(b, report, error));
-            });
-        }
-        drop(tx);
-        for event in rx {
-            match event {
-                Event::Outcome(b, o) => deliver(merger.add(b, o)),
-                Event::Gone(b, report, error) => {
-                    reports[b] = Some((report, error));
-                    deliver(merger.board_gone(b));
-                }
-            }
-        }
-    });
-    deliver(merger.finish());
-    let boards = reports
-        .into_iter()
-        .zip(&merger.counts)
-        .map(|(r, &counts)| {
-            let (report, error) = r.unwrap_or_default();
-            BoardRun {
-                report,
-                error,
-                counts,
-            }
-        })
-        .collect();
-    RigRun {
-        boards,
-        frames_complete: complete,
-        frames_partial: partial,
-        verifier,
-        elapsed: started.elapsed(),
-    }
+    let mut run = RigStream::new(rig, verify);
+    run.run(&mut clients, frames, first_frame, &mut on_frame);
+    run.finish(&mut on_frame)
 }
