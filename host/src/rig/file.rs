@@ -214,17 +214,6 @@ impl Rig {
         })
     }
 
-    /// Which board computes each whole-camera sub-aperture.
-    pub fn board_of(&self) -> Vec<usize> {
-        let mut out = vec![0; self.whole.windows.len()];
-        for (b, board) in self.boards.iter().enumerate() {
-            for &k in &board.windows {
-                out[k] = b;
-            }
-        }
-        out
-    }
-
     /// One line of provenance: the boards and their sub-apertures.
     pub fn describe(&self) -> String {
         self.boards

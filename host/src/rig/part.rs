@@ -24,16 +24,6 @@ pub struct Rectangle {
 }
 
 impl Rectangle {
-    /// The whole sensor of `camera`.
-    pub fn whole(camera: &Camera) -> Self {
-        Rectangle {
-            x: 0,
-            y: 0,
-            width: camera.width,
-            height: camera.height,
-        }
-    }
-
     pub fn pixels(&self) -> usize {
         self.width as usize * self.height as usize
     }
