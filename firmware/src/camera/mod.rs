@@ -93,7 +93,7 @@ mod source;
 pub use packing::DataWidth;
 pub use ring::{
     DmaProgress, DmaRing, FrameMarks, Mark, CACHE_LINE_BYTES, CACHE_LINE_WORDS, MARK_SLOTS,
-    RING_GRANULE_WORDS,
+    MAX_HOLD_BACK_WORDS, RING_GRANULE_WORDS,
 };
 pub use soft::{SimulatedCamera, SoftCapture, SoftDma, SoftRing};
 pub use source::{CameraStats, DcmiSource};

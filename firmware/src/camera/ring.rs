@@ -24,7 +24,9 @@ pub const RING_GRANULE_WORDS: usize = 2 * CACHE_LINE_WORDS;
 ///   lags the DMA by at most one event: the interrupt that counts them has
 ///   the highest priority and is short;
 /// - [`write_index`](Self::write_index) only counts words that are already in
-///   memory;
+///   memory (a DMA with a FIFO overrides [`progress`](Self::progress)
+///   instead, see [`DmaProgress::through_fifo`]); successive readings may go
+///   back by at most [`MAX_HOLD_BACK_WORDS`];
 /// - the frame-end interrupt records each frame's end in
 ///   [`marks`](Self::marks) while the camera is between frames (vertical
 ///   blanking), after the camera interface's FIFO has drained.
@@ -52,6 +54,15 @@ pub trait DmaRing {
 
     /// Frame ends, recorded by the frame-end interrupt.
     fn marks(&self) -> &FrameMarks;
+
+    /// A consistent reading of where the DMA is. The default reads the
+    /// event count around [`write_index`](Self::write_index); a DMA whose
+    /// FIFO may still hold counted words overrides it with
+    /// [`DmaProgress::through_fifo`], whose reading may lie just behind the
+    /// last counted half (which an index alone cannot say).
+    fn progress(&self) -> DmaProgress {
+        DmaProgress::read(|| self.half_events(), || self.write_index())
+    }
 
     /// Invalidates the D-cache lines `first_line .. first_line + count` of
     /// the ring (line `k` holds words `8k .. 8k + 8`). Called right before
@@ -94,7 +105,72 @@ impl DmaProgress {
 
     /// A consistent reading of `ring`.
     pub fn of(ring: &impl DmaRing) -> Self {
-        Self::read(|| ring.half_events(), || ring.write_index())
+        ring.progress()
+    }
+
+    /// A consistent reading of a circular DMA stream with a FIFO of
+    /// `fifo_words` words between the peripheral and memory (the
+    /// STM32H743's DMA1 in FIFO mode: 4 words), from its registers:
+    /// `ndtr` (words left before the reload: `len - ndtr` words read from
+    /// the peripheral), `fifo_empty` (read after `ndtr`) and the half
+    /// events counted by the interrupt, read before and after.
+    ///
+    /// NDTR counts words read from the peripheral, up to `fifo_words` of
+    /// which may still be in the FIFO. If the FIFO reads empty after NDTR,
+    /// every word NDTR counted is in memory; otherwise the reading is held
+    /// back by a whole FIFO. That may put it behind the last half the
+    /// interrupt counted, when the half-transfer flag was raised as NDTR
+    /// crossed the half, before the FIFO's last burst landed (RM0433 says
+    /// transfer-complete waits for the FIFO in peripheral-to-memory mode,
+    /// and says nothing of half-transfer): the reading is then given
+    /// against the event before, which [`position`](Self::position)
+    /// computes exactly. Clamping to the counted half instead (as the board
+    /// once did) claims up to `fifo_words` words not yet written, which a
+    /// host model of the DMA found (`tests/tests/camera_dma_fifo.rs`).
+    ///
+    /// A reading held back may lie up to `fifo_words` before an earlier
+    /// exact one (FIFO empty then, not now): [`MAX_HOLD_BACK_WORDS`].
+    pub fn through_fifo(
+        half_events: impl Fn() -> u32,
+        ndtr: impl Fn() -> usize,
+        fifo_empty: impl Fn() -> bool,
+        len: usize,
+        fifo_words: usize,
+    ) -> Self {
+        debug_assert!(fifo_words <= MAX_HOLD_BACK_WORDS && fifo_words <= len / 2);
+        loop {
+            let before = half_events();
+            let ndt = ndtr();
+            let empty = fifo_empty();
+            // Reads of the ring that follow must not be hoisted above these.
+            core::sync::atomic::fence(Ordering::Acquire);
+            if half_events() != before {
+                continue;
+            }
+            // NDTR counts down from `len` and reloads at 0 (circular mode).
+            let index = (len - ndt.min(len)) % len;
+            if empty {
+                return DmaProgress {
+                    half_events: before,
+                    write_index: index as u32,
+                };
+            }
+            let half = len / 2;
+            let counted_index = (before as usize & 1) * half;
+            let beyond = (index + len - counted_index) % len;
+            let held = (index + len - fifo_words) % len;
+            // Behind the counted half: the same position, counted from the
+            // half before.
+            let events = if beyond < fifo_words {
+                before.wrapping_sub(1)
+            } else {
+                before
+            };
+            return DmaProgress {
+                half_events: events,
+                write_index: held as u32,
+            };
+        }
     }
 
     /// Words written since the DMA started, modulo 2^32, for a ring of
@@ -114,6 +190,12 @@ impl DmaProgress {
         counted.wrapping_add(beyond)
     }
 }
+
+/// How far a reading of [`DmaRing::progress`] may go back from an earlier
+/// one: a DMA FIFO's words, counted once they are in memory (FIFO empty) and
+/// held back at the next reading (FIFO not empty). The camera source takes
+/// such a step back as "nothing new", not as an overrun.
+pub const MAX_HOLD_BACK_WORDS: usize = 4;
 
 /// `later - earlier` for positions that wrap, as a signed distance.
 pub(crate) fn distance(earlier: u32, later: u32) -> i64 {

@@ -8,7 +8,8 @@ use brightpix_protocol::Camera;
 
 use super::packing::{unpack, DataWidth};
 use super::ring::{
-    distance, DmaProgress, DmaRing, Mark, CACHE_LINE_WORDS, MARK_SLOTS, RING_GRANULE_WORDS,
+    distance, DmaProgress, DmaRing, Mark, CACHE_LINE_WORDS, MARK_SLOTS, MAX_HOLD_BACK_WORDS,
+    RING_GRANULE_WORDS,
 };
 use crate::device::{CameraRefused, PixelRun, PixelSource};
 
@@ -152,17 +153,30 @@ impl<'b, R: DmaRing> DcmiSource<'b, R> {
 
     /// The DMA's position, and its index in the ring (positions wrap at
     /// 2^32, which a ring of any length does not divide: the index of a
-    /// position is found from a nearby position's index).
-    fn now(&self) -> (u32, usize) {
+    /// position is found from a nearby position's index). A reading at most
+    /// [`MAX_HOLD_BACK_WORDS`] behind `floor` (words already read, so known
+    /// to be written) is `floor`: a DMA FIFO's hold-back, not an overrun.
+    fn now(&self, floor: u32) -> (u32, usize) {
         let progress = DmaProgress::of(&self.ring);
         let len = self.ring.capacity();
-        (progress.position(len), progress.write_index as usize % len)
+        let position = progress.position(len);
+        let index = progress.write_index as usize % len;
+        let back = distance(position, floor);
+        if back > 0 && back <= MAX_HOLD_BACK_WORDS as i64 {
+            return (floor, (index + back as usize) % len);
+        }
+        (position, index)
     }
 
     /// Takes the next run out of the ring: `(frame, first_pixel, pixels)`
     /// with the pixels at the start of `self.pixels`.
     fn take_run(&mut self) -> Step {
         let len = self.ring.capacity();
+        // Farthest the DMA may be ahead of the next word to read: a ring,
+        // less the words a reading may hold back (still in the DMA's FIFO,
+        // so not counted, but written before the next reading: the words
+        // they land on must not be ones being copied).
+        let reach = (len - MAX_HOLD_BACK_WORDS) as i64;
         let per_word = self.width.pixels_per_word() as u32;
         // Each step either delivers, waits, or moves on to a later frame or
         // position; bounded all the same, against a ring that misbehaves.
@@ -170,12 +184,12 @@ impl<'b, R: DmaRing> DcmiSource<'b, R> {
             let Some(mut run) = self.run else {
                 return Step::Wait;
             };
-            let (now, now_index) = self.now();
+            let (now, now_index) = self.now(run.read);
             let end = run.start.wrapping_add(run.frame_words);
             let confirmed = match self.ring.marks().get(run.frame) {
                 Mark::Lost => {
                     bump(&mut self.stats.marks_lost, 1);
-                    if (0..=len as i64).contains(&distance(run.read, now)) {
+                    if (0..=reach).contains(&distance(run.read, now)) {
                         self.resync(run, now);
                     } else {
                         self.overrun(run, now);
@@ -204,7 +218,7 @@ impl<'b, R: DmaRing> DcmiSource<'b, R> {
                 continue;
             }
             let behind = distance(run.read, now);
-            if !(0..=len as i64).contains(&behind) {
+            if !(0..=reach).contains(&behind) {
                 self.overrun(run, now);
                 continue;
             }
@@ -222,8 +236,8 @@ impl<'b, R: DmaRing> DcmiSource<'b, R> {
             // `behind` <= len words before the DMA's index.
             let index = (now_index + len - behind as usize) % len;
             self.copy(index, n);
-            let (after, _) = self.now();
-            if !(0..=len as i64).contains(&distance(run.read, after)) {
+            let (after, _) = self.now(run.read);
+            if !(0..=reach).contains(&distance(run.read, after)) {
                 // Some of those words may have been overwritten meanwhile.
                 self.overrun(run, after);
                 continue;

@@ -70,6 +70,10 @@ pub struct Behaviour {
     pub speculate_percent: u64,
     /// `half_events` at start (even); positions then wrap 2^32 early on.
     pub start_events: u32,
+    /// Readings go through `DmaProgress::through_fifo` (the STM32H743's),
+    /// the FIFO reading not empty at random while words are coming: held
+    /// back by 4 words, sometimes behind an earlier exact reading.
+    pub fifo_hold_back: bool,
 }
 
 pub struct SimState {
@@ -292,6 +296,25 @@ impl DmaRing for SimRing {
 
     fn marks(&self) -> &FrameMarks {
         &self.marks
+    }
+
+    fn progress(&self) -> DmaProgress {
+        if !self.state.borrow().behaviour.fifo_hold_back {
+            return DmaProgress::read(|| self.half_events(), || self.write_index());
+        }
+        let capacity = self.capacity();
+        DmaProgress::through_fifo(
+            || self.half_events(),
+            || capacity - self.write_index(),
+            || {
+                let mut s = self.state.borrow_mut();
+                // Words still coming may sit in the FIFO; in blanking it
+                // has drained.
+                !(matches!(s.feed.front(), Some(Item::Word(_))) && s.rng.chance(50))
+            },
+            capacity,
+            4,
+        )
     }
 
     fn invalidate_lines(&mut self, first_line: usize, count: usize) {

@@ -57,9 +57,11 @@
 //!   is sized so that a half is a few camera rows (`storage::RING_WORDS`):
 //!   the camera source is woken every half and at the frame end.
 //! - NDTR counts words read from the DCMI, some of which may still sit in
-//!   the DMA FIFO: [`write_index`] holds back to the last whole burst, less
-//!   one, unless the FIFO reads empty (then every counted word is in
-//!   memory), so the source never copies a word not yet written.
+//!   the DMA FIFO: [`progress`] holds back by the FIFO's 4 words unless the
+//!   FIFO reads empty (then every counted word is in memory), even behind
+//!   the half the interrupt has counted (the half-transfer flag may come
+//!   before the last burst lands), so the source never copies a word not
+//!   yet written.
 
 use core::sync::atomic::{AtomicU32, Ordering};
 use core::task::Waker;
@@ -138,7 +140,7 @@ impl Handler<DcmiIrq> for DcmiInterrupt {
             }
             cortex_m::asm::dsb();
             let len = RING_LEN.load(Ordering::Relaxed) as usize;
-            MARKS.record(DmaProgress::read(half_events, || write_index(len)));
+            MARKS.record(progress(len));
             WAKER.wake();
         }
     }
@@ -189,26 +191,19 @@ fn dma_fifo_empty() -> bool {
     pac::DMA1.st(STREAM).fcr().read().fs().to_bits() == FIFO_EMPTY
 }
 
-/// The index of the next word not yet in memory. NDTR is read first: if
-/// the FIFO is empty after it, every word it counts has been written;
-/// otherwise up to a burst and a partial one may still be in the FIFO, so
-/// the index is held back to the previous whole burst (never behind the
-/// last half the interrupt counted, which keeps `DmaProgress` exact).
-fn write_index(len: usize) -> usize {
-    let ndt = pac::DMA1.st(STREAM).ndtr().read().ndt() as usize;
-    let empty = dma_fifo_empty();
-    // Reads of the ring that follow must not be hoisted above this.
-    core::sync::atomic::fence(Ordering::Acquire);
-    // NDTR counts down from `len` and reloads at 0 (circular mode).
-    let index = (len - ndt.min(len)) % len;
-    if empty {
-        return index;
-    }
-    let half = len / 2;
-    let counted = (half_events() as usize & 1) * half;
-    let beyond = (index + len - counted) % len;
-    let held = (beyond / BURST_WORDS * BURST_WORDS).saturating_sub(BURST_WORDS);
-    (counted + held) % len
+/// Where the DMA is: words counted by NDTR, held back by the FIFO's
+/// 4 words unless the FIFO reads empty after NDTR (then every counted word
+/// is in memory). The arithmetic is board independent and tested on the
+/// host against a model of the DMA with both timings of the half-transfer
+/// flag (`DmaProgress::through_fifo`, `tests/tests/camera_dma_fifo.rs`).
+fn progress(len: usize) -> DmaProgress {
+    DmaProgress::through_fifo(
+        half_events,
+        || pac::DMA1.st(STREAM).ndtr().read().ndt() as usize,
+        dma_fifo_empty,
+        len,
+        BURST_WORDS,
+    )
 }
 
 /// The DCMI pins, kept configured while the camera exists.
@@ -423,8 +418,13 @@ impl DmaRing for DcmiRing {
         half_events()
     }
 
+    /// Only with the event count it was read with: [`Self::progress`].
     fn write_index(&self) -> usize {
-        write_index(self.len)
+        progress(self.len).write_index as usize
+    }
+
+    fn progress(&self) -> DmaProgress {
+        progress(self.len)
     }
 
     fn marks(&self) -> &FrameMarks {
