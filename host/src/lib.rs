@@ -13,3 +13,4 @@ pub mod rig;
 pub mod sil;
 pub mod sim_device;
 pub mod simulator;
+pub mod view;

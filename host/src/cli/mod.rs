@@ -18,6 +18,7 @@ mod soak;
 mod status;
 mod stream;
 mod tune;
+mod view;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -52,6 +53,7 @@ enum Command {
     SimulateDevice(simulate_device::SimulateDeviceArgs),
     Soak(soak::SoakArgs),
     Rig(rig::RigArgs),
+    View(view::ViewArgs),
 }
 
 /// A count or size argument that must be at least 1 (`--chunk 0` would
@@ -103,5 +105,6 @@ fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::SimulateDevice(args) => simulate_device::run(args),
         Command::Soak(args) => soak::run(args),
         Command::Rig(args) => rig::run(args),
+        Command::View(args) => view::run(args),
     }
 }

@@ -183,6 +183,29 @@ impl Reference {
             .collect()
     }
 
+    /// Which pixels of sub-aperture `s`'s window are in §3's kept set `K`
+    /// for `frame`, in the window's raster order (all of them when `N >= n`:
+    /// no selection). For display only (the live view): the level filter's
+    /// state is neither read nor changed, since `K` does not depend on it.
+    /// `None` when `s` is not a sub-aperture or `frame` is not
+    /// `width x height` pixels.
+    pub fn kept_pixels(&self, frame: &[u16], s: usize) -> Option<Vec<bool>> {
+        let window = *self.windows.get(s)?;
+        if frame.len() != self.camera.pixel_count() {
+            return None;
+        }
+        let values: Vec<i128> = self
+            .calibrate_window(frame, window)
+            .iter()
+            .map(|px| px.p)
+            .collect();
+        let n_select = self.pixels_to_select[s] as usize;
+        Some(match select(self.rule, n_select, &values) {
+            None => vec![true; values.len()],
+            Some(selection) => values.iter().map(|&p| selection.kept.contains(p)).collect(),
+        })
+    }
+
     /// All stages for sub-aperture `s` of a frame whose pixels are in range.
     fn process_subaperture(&mut self, frame: &[u16], s: usize) -> SubapertureOutput {
         let window = self.windows[s];

@@ -1,0 +1,220 @@
+//! `brightpix view`: the live page (host/src/view) on one source: a
+//! device's port, a simulated device, or a replay. `stream`, `capture` and
+//! `rig stream` open the same page beside their work with `--view`.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{bail, Result};
+use clap::Args;
+
+use crate::config_file::ProcessingConfig;
+use crate::sim_device::camera::QEMU_FPS;
+use crate::sim_device::{
+    catch_interrupts, interrupted, CameraOptions, CameraSpec, InProcessDevice, InProcessOptions,
+    QemuDevice, QemuOptions,
+};
+use crate::view::{address, device, replay, simulated, Hub, Server};
+
+#[derive(Args)]
+#[command(
+    about = "A live view in the browser (served on 127.0.0.1): slopes over the pupil, flux, N, the selected pixels, slopes over time and the device's health",
+    after_help = "Examples:\n  brightpix view --simulate                                   # in-process device fed simulated CANARY frames\n  brightpix view --simulate --config my12bit.toml --drop-every 50   # ...with every 50th frame dropped by the device\n  brightpix view --simulate --camera sim:7                    # a simulated device's own camera (capture)\n  brightpix view --simulate --qemu                            # the firmware in QEMU with its camera\n  brightpix view --port /dev/ttyACM0 --config examples/canary.toml   # a board with its own camera\n  brightpix view --replay slopes.npy --config examples/canary.toml --frames frames.npy --rate 25\n  brightpix stream ... --view        # beside a stream (also capture, rig stream)\n\n\
+Open the printed address in a browser. The page is read-only, built into this program (no network\n\
+needed) and samples the latest results: when it is slower than the data it skips display frames,\n\
+never data frames. Another address than loopback needs --allow-remote. A device that disappears is\n\
+reported on the page and here, and the view reconnects when it answers again."
+)]
+pub struct ViewArgs {
+    /// Port to serve the page on (0: any free one), on 127.0.0.1.
+    #[arg(long, default_value_t = address::DEFAULT_PORT)]
+    port: u16,
+    /// Address to serve on instead (ADDR:PORT); not loopback only with --allow-remote.
+    #[arg(long, value_name = "ADDR:PORT", conflicts_with = "port")]
+    listen: Option<String>,
+    /// Serve on a non-loopback address: anyone who reaches this machine can watch.
+    #[arg(long)]
+    allow_remote: bool,
+    /// A device with its own camera on this serial port (/dev/ttyACM0, /dev/pts/N, unix:PATH).
+    #[arg(long, value_name = "PORT", conflicts_with_all = ["simulate", "replay"])]
+    device: Option<String>,
+    /// A simulated device: in-process, fed simulated frames by the host (or, with --camera or
+    /// --qemu, with a camera of its own).
+    #[arg(long, conflicts_with = "replay")]
+    simulate: bool,
+    /// With --simulate: the device's own simulated camera, sim or sim:SEED (captured from).
+    #[arg(long, value_name = "sim[:SEED]", requires = "simulate")]
+    camera: Option<CameraSpec>,
+    /// With --simulate: the firmware ELF in qemu-system-arm with its own camera.
+    #[arg(long, requires = "simulate")]
+    qemu: bool,
+    /// Recorded results to play back: an .npy set or a results FITS file (docs/OUTPUTS.md).
+    #[arg(long, value_name = "PATH")]
+    replay: Option<PathBuf>,
+    /// With --replay: the recorded frames (.npy or FITS cube), shown with their selected pixels.
+    #[arg(long, value_name = "PATH", requires = "replay")]
+    frames: Option<PathBuf>,
+    /// FITS HDU of --frames.
+    #[arg(long, value_name = "HDU", requires = "frames")]
+    hdu: Option<String>,
+    /// The configuration (default for --simulate: examples/canary.toml's CANARY model).
+    #[arg(long, value_name = "C.toml")]
+    config: Option<PathBuf>,
+    /// With --device: do not upload --config; check that the device runs it.
+    #[arg(long, requires = "device")]
+    no_configure: bool,
+    /// Frames per second of --simulate (fed by the host) or --replay; the camera's for --camera.
+    #[arg(long, value_name = "HZ")]
+    rate: Option<f64>,
+    /// With --simulate (host-fed): every K-th frame carries a pixel above the camera's bit depth,
+    /// so the device drops it (needs a camera of fewer than 16 bits).
+    #[arg(long, value_name = "K", value_parser = clap::value_parser!(u32).range(1..), requires = "simulate")]
+    drop_every: Option<u32>,
+    /// Seed of the simulated frames (--simulate without --camera).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+pub fn run(args: ViewArgs) -> Result<()> {
+    let addr = match &args.listen {
+        Some(text) => address::parse(text)?,
+        None => address::parse(&args.port.to_string())?,
+    };
+    let (config, config_name) = match &args.config {
+        Some(path) => (ProcessingConfig::load(path)?, path.display().to_string()),
+        None if args.simulate => (
+            crate::sil::canary_config(),
+            "examples/canary.toml (built in)".into(),
+        ),
+        None => bail!("--config is needed: the view draws the configuration's sub-apertures"),
+    };
+    if args.device.is_none() && !args.simulate && args.replay.is_none() {
+        bail!("say what to view: --device PORT, --simulate or --replay PATH (see --help)");
+    }
+    // Everything that can be refused is, before the server starts.
+    let mut replay_run = match &args.replay {
+        Some(path) => {
+            let recording = replay::load(path, &config, &config_name)?;
+            let frames = match &args.frames {
+                Some(f) => Some(replay::open_frames(f, args.hdu.as_deref(), &config)?),
+                None => None,
+            };
+            Some(replay::Replay {
+                recording,
+                path: path.clone(),
+                config: config.clone(),
+                config_name: config_name.clone(),
+                frames,
+                rate: args.rate.unwrap_or(25.0),
+            })
+        }
+        None => None,
+    };
+    let listener = address::bind(addr, args.allow_remote)?;
+    let hub = Hub::new();
+    let server = Server::start(listener, hub.clone())?;
+    // The address on stdout, first, for scripts (as simulate-device prints its port).
+    println!("{}", server.url());
+    eprintln!("brightpix: live view at {} (Ctrl-C stops)", server.url());
+    catch_interrupts();
+    let stop = || interrupted();
+    let result = if let Some(replay) = &mut replay_run {
+        replay::run(replay, &hub, &stop)
+    } else if let Some(port) = &args.device {
+        let source = device::DeviceSource {
+            port: port.clone(),
+            config: config.clone(),
+            config_name: config_name.clone(),
+            configure: !args.no_configure,
+            chunk: 100,
+            sim_seed: None,
+            label: format!("device at {port}"),
+        };
+        device::run(&source, &hub, &stop)
+    } else if args.qemu || args.camera.is_some() {
+        simulated_camera(&args, config, config_name, &hub, &stop)
+    } else {
+        let sim = simulated::Simulated {
+            config,
+            config_name,
+            seed: args.seed,
+            rate: args.rate.unwrap_or(100.0),
+            drop_every: args.drop_every,
+        };
+        simulated::run(&sim, &hub, &stop)
+    };
+    if let Err(e) = &result {
+        // The page says it too, until the server stops.
+        hub.set_message(Some(format!("{e:#}")));
+        std::thread::sleep(Duration::from_millis(300));
+    }
+    drop(server);
+    result
+}
+
+/// `--simulate --camera` or `--qemu`: a simulated device with a camera of
+/// its own, captured from as a board's would be.
+fn simulated_camera(
+    args: &ViewArgs,
+    config: ProcessingConfig,
+    config_name: String,
+    hub: &std::sync::Arc<Hub>,
+    stop: &dyn Fn() -> bool,
+) -> Result<()> {
+    if args.drop_every.is_some() {
+        bail!(
+            "--drop-every is for the host-fed simulation (--simulate without --camera or --qemu)"
+        );
+    }
+    let spec = args.camera.unwrap_or(CameraSpec { seed: args.seed });
+    let default_fps = if args.qemu { QEMU_FPS } else { 100 };
+    let fps = match args.rate {
+        Some(r) if r.is_finite() && r >= 1.0 => r.round() as u32,
+        Some(r) => bail!("--rate {r}: must be at least 1 frame per second"),
+        None => default_fps,
+    };
+    let camera = Some(CameraOptions { spec, fps });
+    let mut qemu = None;
+    let mut in_process = None;
+    let port = if args.qemu {
+        let device = QemuDevice::launch(QemuOptions {
+            camera,
+            ..QemuOptions::default()
+        })?;
+        let port = device.port().to_string();
+        qemu = Some(device);
+        port
+    } else {
+        let device = InProcessDevice::start(InProcessOptions {
+            camera,
+            ..InProcessOptions::default()
+        })?;
+        let port = device.port().to_string();
+        in_process = Some(device);
+        port
+    };
+    let source = device::DeviceSource {
+        port: port.clone(),
+        config,
+        config_name,
+        configure: true,
+        // About two seconds of frames per capture: a capture restarts the
+        // simulated camera at its frame 0.
+        chunk: (2 * fps).max(10),
+        sim_seed: Some(spec.seed),
+        label: format!(
+            "simulated device ({}, {port}) with its camera {spec} at {fps} frames/s",
+            if args.qemu {
+                "firmware in QEMU"
+            } else {
+                "in-process"
+            }
+        ),
+    };
+    let outcome = device::run(&source, hub, stop);
+    if let Some(q) = qemu {
+        q.stop();
+    }
+    drop(in_process);
+    outcome
+}
