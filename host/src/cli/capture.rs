@@ -54,6 +54,8 @@ pub struct CaptureArgs {
     /// Mismatches to print with --verify.
     #[arg(long, default_value_t = 10)]
     show: usize,
+    #[command(flatten)]
+    live: super::view::ViewFlag,
 }
 
 pub fn run(args: CaptureArgs) -> Result<()> {
@@ -71,6 +73,7 @@ pub fn run(args: CaptureArgs) -> Result<()> {
         }
         _ => None,
     };
+    let live = args.live.start()?;
     let mut client = Client::open(&args.port)?;
     let mut provenance = None;
     if let (Some(path), Some(config)) = (&args.config, &config) {
@@ -86,6 +89,37 @@ pub fn run(args: CaptureArgs) -> Result<()> {
         p
     });
     provenance.frames_source = Some(format!("the camera of the device at {}", args.port));
+    // The view needs the geometry: --config's. A simulated camera's frames
+    // (--verify --seed) are remade for display, off the data path.
+    let live_n = config.as_ref().map(|c| c.windows.len());
+    let _pixel_maker = match (&live, &config) {
+        (Some(live), Some(c)) => {
+            let mut setup = crate::view::Setup::new(
+                format!("capture from the camera of the device at {}", args.port),
+                args.config
+                    .as_deref()
+                    .unwrap_or(std::path::Path::new(""))
+                    .display()
+                    .to_string(),
+                c.clone(),
+            );
+            setup.pixels = args.verify;
+            live.hub.set_setup(setup);
+            live.hub
+                .set_health(crate::view::Health::from_status(&status));
+            args.verify.then(|| {
+                crate::view::device::PixelMaker::start(live.hub.clone(), c.camera, args.seed)
+            })
+        }
+        (Some(live), None) => {
+            live.hub.set_message(Some(
+                "capture without --config: the view cannot draw the sub-apertures (give --config)"
+                    .into(),
+            ));
+            None
+        }
+        _ => None,
+    };
 
     let progress = super::progress::Progress::new(u64::from(args.count), "frames");
     let started = Instant::now();
@@ -97,6 +131,9 @@ pub fn run(args: CaptureArgs) -> Result<()> {
         last_arrival = now;
         if matches!(o, FrameOutcome::Done(_)) {
             progress.inc(1);
+        }
+        if let (Some(live), Some(n)) = (&live, live_n) {
+            crate::view::offer_outcome(&live.hub, o, n, None);
         }
     });
     progress.finish();
@@ -172,6 +209,9 @@ pub fn run(args: CaptureArgs) -> Result<()> {
     invalid.warn();
     // The board's camera counters run since boot: what this capture added.
     let after = client.status().ok();
+    if let (Some(live), Some(after)) = (&live, &after) {
+        live.hub.set_health(crate::view::Health::from_status(after));
+    }
     if let Some(line) = after.and_then(|a| {
         camera_counters_during(status.health.camera_interface, a.health.camera_interface)
     }) {

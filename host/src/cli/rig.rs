@@ -110,6 +110,8 @@ struct StreamArgs {
     /// The boards already run their parts: check their digests instead of uploading.
     #[arg(long)]
     no_configure: bool,
+    #[command(flatten)]
+    live: super::view::ViewFlag,
 }
 
 pub fn run(args: RigArgs) -> Result<()> {
@@ -308,6 +310,7 @@ fn stream(args: StreamArgs) -> Result<()> {
     let mut source = FrameSource::open_hdu(&args.frames, args.hdu.as_deref())?;
     source.set_camera(&rig.whole.camera)?;
     let total = args.count.unwrap_or(usize::MAX).min(source.len());
+    let live = args.live.start()?;
     let mut clients = open_clients(&rig, &args.rig.ports)?;
     if args.no_configure {
         rig::check_configurations(&rig, &mut clients)?;
@@ -323,7 +326,26 @@ fn stream(args: StreamArgs) -> Result<()> {
         }
         Ok(batch)
     };
-    let outcome = run_and_report(&rig, &mut clients, total, read, args.verify, 10)?;
+    if let Some(live) = &live {
+        let mut setup = crate::view::Setup::new(
+            format!(
+                "rig stream of {} to {} boards",
+                args.frames.display(),
+                rig.boards.len()
+            ),
+            args.rig.rig.display().to_string(),
+            rig.whole.clone(),
+        );
+        setup.pixels = true;
+        setup.boards = rig
+            .boards
+            .iter()
+            .map(|b| (b.name.clone(), b.windows.clone()))
+            .collect();
+        live.hub.set_setup(setup);
+    }
+    let hub = live.as_ref().map(|l| l.hub.as_ref());
+    let outcome = run_and_report(&rig, &mut clients, total, read, args.verify, 10, hub)?;
     if let Some(out) = &args.out {
         let mut provenance = Provenance::of(
             "brightpix rig stream (merged from the boards)",
@@ -389,11 +411,22 @@ pub(super) fn run_and_report(
     mut read: impl FnMut(usize, usize) -> Result<Vec<Vec<u16>>>,
     verify: bool,
     show: usize,
+    live: Option<&crate::view::Hub>,
 ) -> Result<Outcome> {
     let subapertures = rig.whole.windows.len();
     let mut results = Results::new(subapertures);
     let progress = super::progress::Progress::new(total as u64, "frames");
+    let live_boards = std::cell::RefCell::new(LiveBoards::new(rig));
     let mut on_frame = |m: &rig::MergedFrame| {
+        if let Some(hub) = live {
+            live_boards.borrow_mut().count(m);
+            hub.offer(
+                u64::from(m.frame),
+                !m.missing_boards.is_empty(),
+                || m.results.clone(),
+                None,
+            );
+        }
         for r in &m.results {
             results.push(r.map(|e| Raw {
                 slope_x: e.slope_x,
@@ -409,7 +442,14 @@ pub(super) fn run_and_report(
     while first < total {
         let count = BATCH.min(total - first);
         let batch = read(first, count)?;
+        if let Some(hub) = live.filter(|h| h.pixels_due()) {
+            hub.offer_pixels(first as u64, batch[0].clone());
+        }
         stream.run(clients, &batch, first as u32, &mut on_frame);
+        if let Some(hub) = live {
+            // Between batches, as `stream` checks its device's digest.
+            hub.set_health(live_boards.borrow().health(rig, clients));
+        }
         first += count;
     }
     let run = stream.finish(&mut on_frame);
@@ -451,6 +491,152 @@ pub(super) fn run_and_report(
         }
     }
     Ok(Outcome { results, run })
+}
+
+/// `view --rig`: the rig's boards fed `frames` over and over (as `rig
+/// stream` feeds them, batch by batch), their merged results into the
+/// view, until `stop()`.
+pub(super) fn view_rig(
+    rig_path: &Path,
+    ports: &[String],
+    frames: &Path,
+    hdu: Option<&str>,
+    hub: &crate::view::Hub,
+    stop: &dyn Fn() -> bool,
+) -> Result<()> {
+    let rig = Rig::load(rig_path)?;
+    let mut source = FrameSource::open_hdu(frames, hdu)?;
+    source.set_camera(&rig.whole.camera)?;
+    let total = source.len();
+    if total == 0 {
+        bail!("{} holds no frames", frames.display());
+    }
+    let mut clients = open_clients(&rig, ports)?;
+    rig::configure(&rig, &mut clients)?;
+    let mut setup = crate::view::Setup::new(
+        format!(
+            "rig of {} boards, frames of {} over and over",
+            rig.boards.len(),
+            frames.display()
+        ),
+        rig_path.display().to_string(),
+        rig.whole.clone(),
+    );
+    setup.pixels = true;
+    setup.boards = rig
+        .boards
+        .iter()
+        .map(|b| (b.name.clone(), b.windows.clone()))
+        .collect();
+    hub.set_setup(setup);
+    let live = std::cell::RefCell::new(LiveBoards::new(&rig));
+    let mut stream = RigStream::new(&rig, false);
+    let mut on_frame = |m: &rig::MergedFrame| {
+        live.borrow_mut().count(m);
+        hub.offer(
+            u64::from(m.frame),
+            !m.missing_boards.is_empty(),
+            || m.results.clone(),
+            None,
+        );
+    };
+    // Short batches: the view's health is read between two.
+    const VIEW_BATCH: usize = 16;
+    let mut next = 0u64;
+    while !stop() {
+        let first = (next % total as u64) as usize;
+        let count = VIEW_BATCH.min(total - first);
+        let mut batch = vec![Vec::new(); count];
+        for (k, frame) in batch.iter_mut().enumerate() {
+            source.read_frame_into(first + k, frame)?;
+        }
+        if hub.pixels_due() {
+            hub.offer_pixels(next, batch[0].clone());
+        }
+        stream.run(&mut clients, &batch, next as u32, &mut on_frame);
+        let health = live.borrow().health(&rig, &mut clients);
+        let failed: Vec<String> = health
+            .boards
+            .iter()
+            .filter_map(|b| b.error.as_ref().map(|e| format!("{}: {e}", b.name)))
+            .collect();
+        hub.set_message(
+            (!failed.is_empty()).then(|| format!("boards not answering: {}", failed.join("; "))),
+        );
+        hub.set_health(health);
+        next += count as u64;
+    }
+    stream.finish(&mut on_frame);
+    Ok(())
+}
+
+/// Per board, for the view: frames merged with and without its results,
+/// and its predicted load.
+struct LiveBoards {
+    done: Vec<u64>,
+    dropped: Vec<u64>,
+    loads: Vec<Option<f64>>,
+}
+
+impl LiveBoards {
+    fn new(rig: &Rig) -> LiveBoards {
+        let shares: Vec<rig::BoardShare> = rig
+            .boards
+            .iter()
+            .map(|b| rig::BoardShare {
+                rectangle: b.rectangle,
+                windows: b.windows.clone(),
+            })
+            .collect();
+        let model = rig.kind.cost_model();
+        let loads = rig::loads(&rig.whole, &shares, rig.kind, &model, rig.camera_rate_hz);
+        LiveBoards {
+            done: vec![0; rig.boards.len()],
+            dropped: vec![0; rig.boards.len()],
+            loads: loads.iter().map(|l| l.load).collect(),
+        }
+    }
+
+    fn count(&mut self, m: &rig::MergedFrame) {
+        for b in 0..self.done.len() {
+            if m.missing_boards.contains(&b) {
+                self.dropped[b] += 1;
+            } else {
+                self.done[b] += 1;
+            }
+        }
+    }
+
+    /// The boards' counters summed, and each board's line.
+    fn health(&self, rig: &Rig, clients: &mut [Client]) -> crate::view::Health {
+        let mut health = crate::view::Health::default();
+        for (b, (board, client)) in rig.boards.iter().zip(clients.iter_mut()).enumerate() {
+            let status = client.status();
+            if let Ok(s) = &status {
+                let add = |to: &mut Option<u64>, v: u64| *to = Some(to.unwrap_or(0) + v);
+                add(&mut health.frames_processed, s.frames_processed);
+                add(&mut health.frames_dropped, s.frames_dropped);
+                let add32 =
+                    |to: &mut Option<u32>, v: u32| *to = Some(to.unwrap_or(0).saturating_add(v));
+                add32(&mut health.crc_errors, s.crc_errors);
+                add32(&mut health.decode_errors, s.decode_errors);
+                add32(&mut health.overruns, s.overruns);
+                add32(&mut health.pixel_errors, s.pixel_errors);
+            }
+            health.boards.push(crate::view::BoardHealth {
+                name: board.name.clone(),
+                load: self.loads.get(b).copied().flatten(),
+                frames_done: self.done[b],
+                frames_dropped: self.dropped[b],
+                error: status.err().map(|e| e.to_string()),
+            });
+        }
+        // The whole camera's digest: each board runs its own part.
+        health.config_digest = Some(brightpix_protocol::wire::tables::config_digest(
+            &rig.whole.view(),
+        ));
+        health
+    }
 }
 
 /// A simulated board of `demo --boards`.
@@ -522,7 +708,7 @@ pub(super) fn demo(
     );
     print_rig(&rig, None);
     let read = |first: usize, count: usize| Ok(frames[first..first + count].to_vec());
-    let outcome = run_and_report(&rig, &mut clients, frames.len(), read, true, 10)?;
+    let outcome = run_and_report(&rig, &mut clients, frames.len(), read, true, 10, None)?;
     outcome.verdict(true, frames.len())?;
     println!(
         "PASS: all {} merged frames bit-identical to the whole-camera reference",

@@ -71,6 +71,8 @@ pub struct StreamArgs {
     /// With --no-configure: stream even if the device's configuration differs from --config.
     #[arg(long, requires = "no_configure")]
     force: bool,
+    #[command(flatten)]
+    live: super::view::ViewFlag,
 }
 
 /// Frames read and streamed at a time.
@@ -90,6 +92,7 @@ pub fn run(args: StreamArgs) -> Result<()> {
     let total = args.count.unwrap_or(usize::MAX).min(source.len());
     let subapertures = view.windows.len();
     let mut verifier = Verifier::new(&view, args.show).context("configuration")?;
+    let live = args.live.start()?;
     catch_interrupts();
     let mut client = Client::open(&args.port)?;
     client.set_interrupt(Some(interrupted));
@@ -107,6 +110,19 @@ pub fn run(args: StreamArgs) -> Result<()> {
     }
     if let Some(fifo) = &args.pixels_fifo {
         client.set_pixel_sink(PixelSink::Fifo(fifo.clone()));
+    }
+    if let Some(live) = &live {
+        let mut setup = crate::view::Setup::new(
+            format!(
+                "stream of {} to {}",
+                args.frames.display(),
+                client.port_name()
+            ),
+            args.config.display().to_string(),
+            config.clone(),
+        );
+        setup.pixels = true;
+        live.hub.set_setup(setup);
     }
     // Slopes go to the file as they arrive: it holds every frame received
     // so far at any moment, even if this process is killed.
@@ -145,6 +161,15 @@ pub fn run(args: StreamArgs) -> Result<()> {
                 }
             }
             progress.inc(1);
+            if let Some(live) = &live {
+                let k = o.frame().wrapping_sub(first as u32) as usize;
+                crate::view::offer_outcome(
+                    &live.hub,
+                    &o,
+                    subapertures,
+                    batch.get(k).map(Vec::as_slice),
+                );
+            }
             outcomes.push(o);
         });
         if let Some(e) = write_error {
@@ -175,7 +200,12 @@ pub fn run(args: StreamArgs) -> Result<()> {
         // configuration: the slopes would then be its configuration's. The
         // digest is checked after every batch, so the frames before the
         // last good check are known to be this configuration's.
-        match client.status() {
+        let status = client.status();
+        if let (Some(live), Ok(status)) = (&live, &status) {
+            live.hub
+                .set_health(crate::view::Health::from_status(status));
+        }
+        match status {
             Ok(status) if status.config_digest == expected_digest => trusted = first + count,
             Ok(status) => {
                 let digest = |d: Option<u32>| d.map_or("none".into(), |d| format!("{d:#010x}"));
@@ -194,6 +224,17 @@ pub fn run(args: StreamArgs) -> Result<()> {
         first += count;
     }
     progress.finish();
+    if let Some(live) = &live {
+        let ended = match (&failure, &taken_over) {
+            (Some(e), _) => format!("the stream stopped: {e}"),
+            (None, Some(problem)) => problem.clone(),
+            (None, None) => format!(
+                "the stream ended after {} frames",
+                tally.done + tally.dropped
+            ),
+        };
+        live.hub.set_message(Some(ended));
+    }
     if let Some(out) = out {
         let mut provenance = Provenance::of("brightpix stream (device)", &view, Some(&args.config));
         provenance.frames_source = Some(args.frames.display().to_string());

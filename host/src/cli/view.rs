@@ -19,7 +19,7 @@ use crate::view::{address, device, replay, simulated, Hub, Server};
 #[derive(Args)]
 #[command(
     about = "A live view in the browser (served on 127.0.0.1): slopes over the pupil, flux, N, the selected pixels, slopes over time and the device's health",
-    after_help = "Examples:\n  brightpix view --simulate                                   # in-process device fed simulated CANARY frames\n  brightpix view --simulate --config my12bit.toml --drop-every 50   # ...with every 50th frame dropped by the device\n  brightpix view --simulate --camera sim:7                    # a simulated device's own camera (capture)\n  brightpix view --simulate --qemu                            # the firmware in QEMU with its camera\n  brightpix view --port /dev/ttyACM0 --config examples/canary.toml   # a board with its own camera\n  brightpix view --replay slopes.npy --config examples/canary.toml --frames frames.npy --rate 25\n  brightpix stream ... --view        # beside a stream (also capture, rig stream)\n\n\
+    after_help = "Examples:\n  brightpix view --simulate                                   # in-process device fed simulated CANARY frames\n  brightpix view --simulate --config my12bit.toml --drop-every 50   # ...with every 50th frame dropped by the device\n  brightpix view --simulate --camera sim:7                    # a simulated device's own camera (capture)\n  brightpix view --simulate --qemu                            # the firmware in QEMU with its camera\n  brightpix view --port /dev/ttyACM0 --config examples/canary.toml   # a board with its own camera\n  brightpix view --replay slopes.npy --config examples/canary.toml --frames frames.npy --rate 25\n  brightpix view --rig rig.toml --frames frames.npy                # a rig's boards, merged\n  brightpix stream ... --view        # beside a stream (also capture, rig stream)\n\n\
 Open the printed address in a browser. The page is read-only, built into this program (no network\n\
 needed) and samples the latest results: when it is slower than the data it skips display frames,\n\
 never data frames. Another address than loopback needs --allow-remote. A device that disappears is\n\
@@ -36,8 +36,14 @@ pub struct ViewArgs {
     #[arg(long)]
     allow_remote: bool,
     /// A device with its own camera on this serial port (/dev/ttyACM0, /dev/pts/N, unix:PATH).
-    #[arg(long, value_name = "PORT", conflicts_with_all = ["simulate", "replay"])]
+    #[arg(long, value_name = "PORT", conflicts_with_all = ["simulate", "replay", "rig"])]
     device: Option<String>,
+    /// A rig file (brightpix rig plan): its boards fed --frames over and over, merged.
+    #[arg(long, value_name = "rig.toml", conflicts_with_all = ["simulate", "replay", "config"], requires = "frames")]
+    rig: Option<PathBuf>,
+    /// With --rig: the boards' ports in the file's board order, instead of the file's.
+    #[arg(long, value_name = "P1,P2,..", value_delimiter = ',', requires = "rig")]
+    ports: Vec<String>,
     /// A simulated device: in-process, fed simulated frames by the host (or, with --camera or
     /// --qemu, with a camera of its own).
     #[arg(long, conflicts_with = "replay")]
@@ -51,8 +57,9 @@ pub struct ViewArgs {
     /// Recorded results to play back: an .npy set or a results FITS file (docs/OUTPUTS.md).
     #[arg(long, value_name = "PATH")]
     replay: Option<PathBuf>,
-    /// With --replay: the recorded frames (.npy or FITS cube), shown with their selected pixels.
-    #[arg(long, value_name = "PATH", requires = "replay")]
+    /// With --replay: the recorded frames (.npy or FITS cube), shown with their selected pixels;
+    /// with --rig: the frames fed to the boards.
+    #[arg(long, value_name = "PATH")]
     frames: Option<PathBuf>,
     /// FITS HDU of --frames.
     #[arg(long, value_name = "HDU", requires = "frames")]
@@ -80,6 +87,20 @@ pub fn run(args: ViewArgs) -> Result<()> {
         Some(text) => address::parse(text)?,
         None => address::parse(&args.port.to_string())?,
     };
+    if args.device.is_none() && !args.simulate && args.replay.is_none() && args.rig.is_none() {
+        bail!(
+            "say what to view: --device PORT, --rig FILE, --simulate or --replay PATH (see --help)"
+        );
+    }
+    if args.frames.is_some() && args.replay.is_none() && args.rig.is_none() {
+        bail!("--frames goes with --replay or --rig");
+    }
+    if let Some(rig) = &args.rig {
+        let frames = args.frames.as_deref().unwrap_or(rig);
+        return serve(addr, args.allow_remote, |hub, stop| {
+            super::rig::view_rig(rig, &args.ports, frames, args.hdu.as_deref(), hub, stop)
+        });
+    }
     let (config, config_name) = match &args.config {
         Some(path) => (ProcessingConfig::load(path)?, path.display().to_string()),
         None if args.simulate => (
@@ -88,9 +109,6 @@ pub fn run(args: ViewArgs) -> Result<()> {
         ),
         None => bail!("--config is needed: the view draws the configuration's sub-apertures"),
     };
-    if args.device.is_none() && !args.simulate && args.replay.is_none() {
-        bail!("say what to view: --device PORT, --simulate or --replay PATH (see --help)");
-    }
     // Everything that can be refused is, before the server starts.
     let mut replay_run = match &args.replay {
         Some(path) => {
@@ -110,41 +128,51 @@ pub fn run(args: ViewArgs) -> Result<()> {
         }
         None => None,
     };
-    let listener = address::bind(addr, args.allow_remote)?;
+    serve(addr, args.allow_remote, |hub, stop| {
+        if let Some(replay) = &mut replay_run {
+            replay::run(replay, hub, stop)
+        } else if let Some(port) = &args.device {
+            let source = device::DeviceSource {
+                port: port.clone(),
+                config: config.clone(),
+                config_name: config_name.clone(),
+                configure: !args.no_configure,
+                chunk: 100,
+                sim_seed: None,
+                label: format!("device at {port}"),
+            };
+            device::run(&source, hub, stop)
+        } else if args.qemu || args.camera.is_some() {
+            simulated_camera(&args, config.clone(), config_name.clone(), hub, stop)
+        } else {
+            let sim = simulated::Simulated {
+                config: config.clone(),
+                config_name: config_name.clone(),
+                seed: args.seed,
+                rate: args.rate.unwrap_or(100.0),
+                drop_every: args.drop_every,
+            };
+            simulated::run(&sim, hub, stop)
+        }
+    })
+}
+
+/// Serves the page on `addr` while `work` feeds the hub, until Ctrl-C or
+/// until `work` ends; an error is shown on the page too, briefly.
+fn serve(
+    addr: std::net::SocketAddr,
+    allow_remote: bool,
+    work: impl FnOnce(&std::sync::Arc<Hub>, &dyn Fn() -> bool) -> Result<()>,
+) -> Result<()> {
+    let listener = address::bind(addr, allow_remote)?;
     let hub = Hub::new();
     let server = Server::start(listener, hub.clone())?;
     // The address on stdout, first, for scripts (as simulate-device prints its port).
     println!("{}", server.url());
     eprintln!("brightpix: live view at {} (Ctrl-C stops)", server.url());
     catch_interrupts();
-    let stop = || interrupted();
-    let result = if let Some(replay) = &mut replay_run {
-        replay::run(replay, &hub, &stop)
-    } else if let Some(port) = &args.device {
-        let source = device::DeviceSource {
-            port: port.clone(),
-            config: config.clone(),
-            config_name: config_name.clone(),
-            configure: !args.no_configure,
-            chunk: 100,
-            sim_seed: None,
-            label: format!("device at {port}"),
-        };
-        device::run(&source, &hub, &stop)
-    } else if args.qemu || args.camera.is_some() {
-        simulated_camera(&args, config, config_name, &hub, &stop)
-    } else {
-        let sim = simulated::Simulated {
-            config,
-            config_name,
-            seed: args.seed,
-            rate: args.rate.unwrap_or(100.0),
-            drop_every: args.drop_every,
-        };
-        simulated::run(&sim, &hub, &stop)
-    };
+    let result = work(&hub, &interrupted);
     if let Err(e) = &result {
-        // The page says it too, until the server stops.
         hub.set_message(Some(format!("{e:#}")));
         std::thread::sleep(Duration::from_millis(300));
     }
@@ -217,4 +245,27 @@ fn simulated_camera(
     }
     drop(in_process);
     outcome
+}
+
+/// `--view [ADDR:PORT]` of `stream`, `capture` and `rig stream`: the live
+/// page beside their work.
+#[derive(Args, Clone, Debug, Default)]
+pub(super) struct ViewFlag {
+    /// Open the live view in the browser beside this work (default 127.0.0.1:8093; PORT or
+    /// ADDR:PORT to choose). It samples the results and never slows them.
+    #[arg(long, value_name = "ADDR:PORT", num_args = 0..=1, default_missing_value = "8093")]
+    view: Option<String>,
+    /// With --view: serve on a non-loopback address (anyone who reaches this machine can watch).
+    #[arg(long = "view-allow-remote", requires = "view")]
+    allow_remote: bool,
+}
+
+impl ViewFlag {
+    /// The view, started, if asked for.
+    pub fn start(&self) -> Result<Option<crate::view::Attached>> {
+        self.view
+            .as_deref()
+            .map(|spec| crate::view::attach(spec, self.allow_remote))
+            .transpose()
+    }
 }

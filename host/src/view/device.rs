@@ -49,17 +49,10 @@ enum End {
 /// Runs until `stop()`; returns an error only for what reconnecting
 /// cannot cure.
 pub fn run(source: &DeviceSource, hub: &Arc<Hub>, stop: &dyn Fn() -> bool) -> anyhow::Result<()> {
-    let remaking = AtomicBool::new(true);
-    thread::scope(|scope| {
-        if let Some(seed) = source.sim_seed {
-            let camera = source.config.camera;
-            let remaking = &remaking;
-            scope.spawn(move || remake_pixels(hub, camera, seed, remaking));
-        }
-        let outcome = sessions(source, hub, stop);
-        remaking.store(false, Ordering::Relaxed);
-        outcome
-    })
+    let _maker = source
+        .sim_seed
+        .map(|seed| PixelMaker::start(hub.clone(), source.config.camera, seed));
+    sessions(source, hub, stop)
 }
 
 fn sessions(source: &DeviceSource, hub: &Hub, stop: &dyn Fn() -> bool) -> anyhow::Result<()> {
@@ -189,19 +182,44 @@ fn lost_or_fatal(e: LinkError) -> End {
     }
 }
 
-/// Remakes the simulated camera's frame of the latest sample, a few times
-/// a second, off the data path.
-fn remake_pixels(hub: &Hub, camera: brightpix_protocol::Camera, seed: u64, running: &AtomicBool) {
-    let frames = CameraFrames::new(camera, seed);
-    let mut last = None;
-    while running.load(Ordering::Relaxed) {
-        if let Some(frame) = hub.latest_frame().filter(|f| Some(*f) != last) {
-            if let Some(pixels) = frames.frames(frame, 1).pop() {
-                hub.offer_pixels(frame, pixels);
-            }
-            last = Some(frame);
+/// Remakes a simulated camera's frame of the latest results sample, a few
+/// times a second, on a thread of its own (off the data path), for
+/// sources whose pixels are not on the link. Stops when dropped.
+pub struct PixelMaker {
+    running: Arc<AtomicBool>,
+    thread: Option<thread::JoinHandle<()>>,
+}
+
+impl PixelMaker {
+    pub fn start(hub: Arc<Hub>, camera: brightpix_protocol::Camera, seed: u64) -> PixelMaker {
+        let running = Arc::new(AtomicBool::new(true));
+        let flag = running.clone();
+        let thread = thread::Builder::new()
+            .name("brightpix-view-pixels".into())
+            .spawn(move || {
+                let frames = CameraFrames::new(camera, seed);
+                let mut last = None;
+                while flag.load(Ordering::Relaxed) {
+                    if let Some(frame) = hub.latest_frame().filter(|f| Some(*f) != last) {
+                        if let Some(pixels) = frames.frames(frame, 1).pop() {
+                            hub.offer_pixels(frame, pixels);
+                        }
+                        last = Some(frame);
+                    }
+                    thread::sleep(Duration::from_millis(200));
+                }
+            })
+            .ok();
+        PixelMaker { running, thread }
+    }
+}
+
+impl Drop for PixelMaker {
+    fn drop(&mut self) {
+        self.running.store(false, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
         }
-        thread::sleep(Duration::from_millis(200));
     }
 }
 

@@ -142,7 +142,7 @@ impl<T> Slot<T> {
     fn put(&self, value: T) {
         let value = Arc::new(value);
         // Swapped under the lock, dropped (the old value) outside it.
-        let old = std::mem::replace(&mut *lock(&self.value), Some(value));
+        let old = lock(&self.value).replace(value);
         self.generation.fetch_add(1, Ordering::Release);
         drop(old);
     }
@@ -371,7 +371,7 @@ mod tests {
         }
         assert_eq!(hub.frames_seen(), 1000);
         assert_eq!(hub.frames_dropped(), 100);
-        assert!(built >= 1 && built < 1000, "results copied {built} times");
+        assert!((1..1000).contains(&built), "results copied {built} times");
         let sample = hub.results_if_newer(&mut seen).expect("a sample");
         assert_eq!(sample.results, vec![entry(0)]);
         // Nothing new until the next sample.

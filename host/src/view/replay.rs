@@ -264,7 +264,7 @@ pub fn run(replay: &mut Replay, hub: &Hub, stop: &dyn Fn() -> bool) -> Result<()
         hub.offer(f as u64, !complete, || results, frame_pixels);
         health.frames_processed = Some(k + 1);
         health.config_digest = r.digest;
-        if k % 8 == 0 {
+        if k.is_multiple_of(8) {
             hub.set_health(health.clone());
         }
         k += 1;

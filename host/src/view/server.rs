@@ -161,6 +161,9 @@ fn handle(mut stream: TcpStream, hub: &Hub, stop: &AtomicBool) -> io::Result<()>
             b"the view is read-only: GET only\n",
         );
     }
+    if path == "/favicon.ico" {
+        return respond(&stream, "204 No Content", "text/plain", b"");
+    }
     match page::asset(&path) {
         Some((kind, body)) => {
             let body = if method == "HEAD" { &[][..] } else { body };

@@ -37,7 +37,9 @@ function onText(text) {
     view.pixels = null;
     view.chosen = view.chosen.filter((s) => s < m.windows.length);
     view.series.clear();
-    $("source").textContent = `${m.source} · ${m.config} (digest ${m.digest}, ${m.windows.length} sub-apertures, ${m.camera.width}x${m.camera.height})`;
+    const name = m.config.split("/").pop();
+    $("source").textContent = `${m.source} · ${name} (digest ${m.digest}, ${m.windows.length} sub-apertures, ${m.camera.width}x${m.camera.height})`;
+    $("source").title = m.config;
     $("camera-note").textContent = m.pixels
       ? "Selected pixels (the host reference's kept set, for display) in orange."
       : "No pixels from this source (a device's own camera, or a replay without frames).";
