@@ -15,9 +15,15 @@ const view = {
   chosen: [], // sub-aperture indices followed in the time series
   series: new Map(), // index -> {x: [], y: []}
   rates: [],
-  updates: 0,
+  updates: 0, // results drawn
+  received: 0, // results received (more than drawn when the page is slower)
+  drawn: 0, // `received` when last drawn
   pixelUpdates: 0,
   dirty: false,
+  // The camera image and the N map are redrawn only when they change (a
+  // 1280x1280 camera is 1.6 M pixels to colour).
+  pixelsDirty: false,
+  setupDirty: false,
 };
 
 const $ = (id) => document.getElementById(id);
@@ -36,6 +42,8 @@ function onText(text) {
     view.results = null;
     view.pixels = null;
     view.chosen = view.chosen.filter((s) => s < m.windows.length);
+    view.setupDirty = true;
+    view.pixelsDirty = true;
     view.series.clear();
     const name = m.config.split("/").pop();
     $("source").textContent = `${m.source} · ${name} (digest ${m.digest}, ${m.windows.length} sub-apertures, ${m.camera.width}x${m.camera.height})`;
@@ -74,7 +82,7 @@ function onBinary(buffer) {
       state: new Uint8Array(buffer, 40 + 12 * n, n),
     };
     view.results = r;
-    view.updates += 1;
+    view.received += 1;
     for (const s of view.chosen) {
       if (s >= n) continue;
       const h = view.series.get(s) || { x: [], y: [] };
@@ -97,6 +105,7 @@ function onBinary(buffer) {
       mask: new Uint8Array(buffer, 24 + 2 * area, area),
     };
     view.pixelUpdates += 1;
+    view.pixelsDirty = true;
   }
   view.dirty = true;
 }
@@ -177,6 +186,13 @@ function drawPupil() {
   setCount("arrows", arrows);
 }
 
+// 256 colours of the maps, made once: building a CSS colour string per
+// window per frame costs more than the drawing at 80x80.
+const MAP_COLORS = Array.from({ length: 256 }, (_, i) => {
+  const c = Math.round(30 + (200 * i) / 255);
+  return `rgb(${c},${Math.round(c * 0.85)},${Math.round(90 + 0.5 * c)})`;
+});
+
 function drawMap(id, values, label, format) {
   const canvas = $(id), ctx = canvas.getContext("2d");
   const k = fit(canvas, 260);
@@ -190,8 +206,7 @@ function drawMap(id, values, label, format) {
     if (!Number.isFinite(v)) { ctx.fillStyle = "#eee"; }
     else {
       const t = hi > lo ? (v - lo) / (hi - lo) : 1;
-      const c = Math.round(30 + 200 * t);
-      ctx.fillStyle = `rgb(${c},${Math.round(c * 0.85)},${Math.round(90 + 0.5 * c)})`;
+      ctx.fillStyle = MAP_COLORS[Math.round(255 * t)];
     }
     ctx.fillRect(x * k, y * k, w * k - 1, h * k - 1);
     if (format && w * k >= 20 && Number.isFinite(v)) {
@@ -207,7 +222,11 @@ let cameraImage = null;
 function drawCamera() {
   const canvas = $("camera"), ctx = canvas.getContext("2d");
   const p = view.pixels;
-  if (!p) { return; }
+  if (!p) {
+    ctx.clearRect(0, 0, canvas.width, canvas.height);
+    $("camera-frame").textContent = "";
+    return;
+  }
   const k = fit(canvas, 420);
   if (!cameraImage || cameraImage.width !== p.width || cameraImage.height !== p.height) {
     cameraImage = document.createElement("canvas");
@@ -317,14 +336,25 @@ function draw() {
   requestAnimationFrame(draw);
   if (!view.dirty) return;
   view.dirty = false;
+  const t0 = performance.now();
   if (view.setup) {
+    let t = performance.now();
     drawPupil();
+    setCount("pupilMs", (performance.now() - t).toFixed(1));
+    t = performance.now();
     const r = view.results, n = view.setup.windows.length;
     const flux = new Array(n).fill(NaN);
     if (r) for (let s = 0; s < n && s < r.state.length; s++) if (r.state[s]) flux[s] = r.flux[s];
     drawMap("flux", flux, "flux-range", null);
-    drawMap("nmap", view.setup.n, "n-range", (v) => v.toFixed(0));
-    drawCamera();
+    setCount("fluxMs", (performance.now() - t).toFixed(1));
+    if (view.setupDirty) {
+      drawMap("nmap", view.setup.n, "n-range", (v) => v.toFixed(0));
+      view.setupDirty = false;
+    }
+    if (view.pixelsDirty) {
+      drawCamera();
+      view.pixelsDirty = false;
+    }
   }
   drawSeries();
   drawHealth();
@@ -333,9 +363,15 @@ function draw() {
   setCount("frames", r ? r.seen : 0);
   setCount("dropped", r ? r.dropped : 0);
   setCount("rate", r ? r.rate.toFixed(2) : 0);
+  if (view.received !== view.drawn) {
+    view.updates += 1;
+    view.drawn = view.received;
+  }
   setCount("updates", view.updates);
+  setCount("received", view.received);
   setCount("pixelUpdates", view.pixelUpdates);
   setCount("chosen", view.chosen.join(","));
+  setCount("drawMs", (performance.now() - t0).toFixed(1));
 }
 
 $("pupil").addEventListener("click", (e) => {
