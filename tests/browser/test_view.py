@@ -223,3 +223,34 @@ def test_bad_addresses_and_recordings_are_refused(tmp_path: Path) -> None:
     )
     assert other.returncode != 0
     assert "recording of another configuration" in other.stderr, other.stderr
+
+
+def test_a_replay_shows_valid_and_invalid_sub_apertures(tmp_path: Path, browser_page: Page) -> None:
+    """Recorded results played back: an arrow for each valid sub-aperture, a cross for each
+    invalid one, and the recorded frames with their selected pixels."""
+    page = browser_page
+    config = REPO / "examples" / "canary.toml"
+    # A spot in every window whose column + row is even (25 of 49); the others are flat,
+    # so nothing is selected there, their flux is 0 and they are invalid.
+    frames = np.full((4, 112, 112), 60, dtype=np.uint16)
+    for row in range(7):
+        for col in range(7):
+            if (row + col) % 2 == 0:
+                y, x = 16 * row + 6, 16 * col + 5
+                frames[:, y : y + 3, x : x + 3] = 900
+    np.save(tmp_path / "frames.npy", frames)
+    frames_path, recording = tmp_path / "frames.npy", tmp_path / "r.npy"
+    made = run("process", "--config", config, "--frames", frames_path, "--out", recording)
+    assert made.returncode == 0, made.stderr
+    view, url = start(
+        "view", "--replay", recording, "--config", config,
+        "--frames", frames_path, "--rate", 50, "--port", 0,
+    )  # fmt: skip
+    try:
+        page.goto(url)
+        shown = wait_for(page, "Number(c.updates) >= 2 && Number(c.selectedPixels) > 0")
+        assert (shown["valid"], shown["invalid"], shown["arrows"]) == ("25", "24", "25"), shown
+        # The 3x3 spots: 9 pixels above the background in each of the 25 windows.
+        assert shown["selectedPixels"] == str(25 * 9), shown
+    finally:
+        stop(view)
