@@ -5,7 +5,10 @@
 //! 1.5 px) at a random offset of up to +-3 px from the window's centre
 //! (+-1 px in windows under 12 px), 50 counts of background and +-3 counts
 //! of uniform noise, rounded to the nearest count: the host benchmark's
-//! frames, in f32.
+//! frames, in f32. Variants a reviewer could ask for: closed-loop spots
+//! (each moves less than 0.3 px a frame), another noise amplitude, and a
+//! fixed pattern of +-2 counts in the background (which the workload's
+//! background map then holds, as a dark frame would).
 
 use libm::{expf, floorf};
 
@@ -33,8 +36,11 @@ impl Grid {
 /// How a frame's pixels are made.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Pattern {
-    /// A Gaussian spot in each window.
+    /// A Gaussian spot in each window, anywhere in its range every frame.
     Spots,
+    /// As `Spots`, but each spot moves by less than 0.3 px in x and y
+    /// between frames (a random walk kept in range): a closed loop.
+    ClosedLoopSpots,
     /// In each window, values rising in raster order (1 count a pixel from
     /// 50): every new pixel is the brightest so far.
     Ramp,
@@ -45,6 +51,16 @@ pub enum Pattern {
 }
 
 const BACKGROUND: f32 = 50.0;
+
+/// Windows whose spots a closed-loop generator remembers between frames.
+pub const MAX_CLOSED_LOOP_WINDOWS: usize = 256;
+
+/// The fixed background pattern at camera pixel (x, y), -2 to +2 counts:
+/// added to the frames' background and held by the background map of a
+/// workload with a patterned background.
+pub fn background_pattern(x: usize, y: usize) -> i32 {
+    ((x * 7 + y * 13) % 5) as i32 - 2
+}
 /// 200 photons / (2 pi sigma^2), sigma^2 = 2.25.
 const PEAK: f32 = 200.0 / (2.0 * core::f32::consts::PI * 2.25);
 
@@ -71,18 +87,71 @@ pub struct Generator {
     rng: Rng,
     grid: Grid,
     pattern: Pattern,
+    /// Peak-to-peak amplitude of the uniform noise, counts.
+    noise: f32,
+    /// Whether the background has [`background_pattern`].
+    patterned: bool,
     /// Spot centres of the current row of windows.
     centres: [(f32, f32); 128],
+    /// Closed loop: every window's spot offset from its window's centre,
+    /// kept from frame to frame.
+    offsets: [(f32, f32); MAX_CLOSED_LOOP_WINDOWS],
+    /// Frames started (a closed loop places its spots at random in the
+    /// first).
+    frames: usize,
 }
 
 impl Generator {
     pub fn new(seed: u64, grid: Grid, pattern: Pattern) -> Self {
         assert!(grid.across <= 128);
+        assert!(pattern != Pattern::ClosedLoopSpots || grid.windows() <= MAX_CLOSED_LOOP_WINDOWS);
         Generator {
             rng: Rng::new(seed),
             grid,
             pattern,
+            noise: 6.0,
+            patterned: false,
             centres: [(0.0, 0.0); 128],
+            offsets: [(0.0, 0.0); MAX_CLOSED_LOOP_WINDOWS],
+            frames: 0,
+        }
+    }
+
+    /// Uniform noise of `peak_to_peak` counts (6 by default: +-3).
+    pub fn with_noise(mut self, peak_to_peak: f32) -> Self {
+        self.noise = peak_to_peak;
+        self
+    }
+
+    /// Adds [`background_pattern`] to every pixel.
+    pub fn with_patterned_background(mut self, patterned: bool) -> Self {
+        self.patterned = patterned;
+        self
+    }
+
+    /// The spot centres of grid row `row` for the frame starting now.
+    fn place_spots(&mut self, row: usize) {
+        let side = self.grid.side;
+        let reach = if side >= 12 { 3.0 } else { 1.0 };
+        let middle = (side as f32 - 1.0) / 2.0;
+        let across = self.grid.across;
+        for k in 0..across {
+            let (dx, dy) = match self.pattern {
+                Pattern::ClosedLoopSpots if self.frames > 1 => {
+                    // Steps of less than 0.3 px, kept within reach.
+                    let (x, y) = self.offsets[row * across + k];
+                    let step = |v: f32, u: f32| (v + (u - 0.5) * 0.58).clamp(-reach, reach);
+                    (step(x, self.rng.next()), step(y, self.rng.next()))
+                }
+                _ => (
+                    (self.rng.next() - 0.5) * 2.0 * reach,
+                    (self.rng.next() - 0.5) * 2.0 * reach,
+                ),
+            };
+            if self.pattern == Pattern::ClosedLoopSpots {
+                self.offsets[row * across + k] = (dx, dy);
+            }
+            self.centres[k] = (middle + dx, middle + dy);
         }
     }
 
@@ -91,28 +160,31 @@ impl Generator {
     pub fn row(&mut self, y: usize, out: &mut [u16]) {
         let side = self.grid.side;
         let j = y % side;
-        if j == 0 && self.pattern == Pattern::Spots {
-            let reach = if side >= 12 { 3.0 } else { 1.0 };
-            let middle = (side as f32 - 1.0) / 2.0;
-            for c in &mut self.centres[..self.grid.across] {
-                let cx = middle + (self.rng.next() - 0.5) * 2.0 * reach;
-                let cy = middle + (self.rng.next() - 0.5) * 2.0 * reach;
-                *c = (cx, cy);
-            }
+        if y == 0 {
+            self.frames += 1;
         }
+        if j == 0 && matches!(self.pattern, Pattern::Spots | Pattern::ClosedLoopSpots) {
+            self.place_spots(y / side);
+        }
+        let noise = self.noise;
         for (sx, part) in out.chunks_exact_mut(side).enumerate() {
             let (cx, cy) = self.centres[sx];
             for (i, p) in part.iter_mut().enumerate() {
+                let background = if self.patterned {
+                    BACKGROUND + background_pattern(sx * side + i, y) as f32
+                } else {
+                    BACKGROUND
+                };
                 let v = match self.pattern {
-                    Pattern::Spots => {
+                    Pattern::Spots | Pattern::ClosedLoopSpots => {
                         let (dx, dy) = (i as f32 - cx, j as f32 - cy);
-                        BACKGROUND
+                        background
                             + PEAK * expf(-(dx * dx + dy * dy) / 4.5)
-                            + (self.rng.next() - 0.5) * 6.0
+                            + (self.rng.next() - 0.5) * noise
                     }
-                    Pattern::Ramp => BACKGROUND + (j * side + i) as f32,
-                    Pattern::FlatNoise => BACKGROUND + (self.rng.next() - 0.5) * 6.0,
-                    Pattern::AllEqual => BACKGROUND,
+                    Pattern::Ramp => background + (j * side + i) as f32,
+                    Pattern::FlatNoise => background + (self.rng.next() - 0.5) * noise,
+                    Pattern::AllEqual => background,
                 };
                 *p = floorf(v + 0.5) as u16;
             }

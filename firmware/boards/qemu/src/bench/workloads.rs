@@ -10,7 +10,7 @@ use brightpix_protocol::{
 };
 
 use crate::floor::{read_every_pixel, Floor, FloorMode};
-use crate::frames::{Generator, Grid, Pattern};
+use crate::frames::{background_pattern, Generator, Grid, Pattern};
 use crate::meter::Meter;
 use crate::sort;
 
@@ -27,6 +27,11 @@ pub struct Workload {
     pub level_filter: Option<LevelFilter>,
     /// A background map (50 counts everywhere, as a map: the engine reads it).
     pub background: bool,
+    /// The frames' background has `frames::background_pattern` (+-2
+    /// counts), and so has the map.
+    pub patterned_background: bool,
+    /// Peak-to-peak uniform noise, counts (6: +-3).
+    pub noise: f32,
     /// Frames pushed before measuring (the seeds of a running camera).
     pub warmup: usize,
     /// Frames measured.
@@ -52,6 +57,8 @@ pub const CANARY: Workload = Workload {
     n: 20,
     level_filter: None,
     background: true,
+    patterned_background: false,
+    noise: 6.0,
     warmup: 8,
     frames: 8,
     sort: true,
@@ -97,6 +104,29 @@ pub const ALL: &[Workload] = &[
         name: "canary-12bit-runs-512",
         bit_depth: 12,
         chunk: Some(512),
+        sort: false,
+        ..CANARY
+    },
+    // Spots that move less than 0.3 px a frame, as in a closed loop.
+    Workload {
+        name: "canary-closed-loop",
+        pattern: Pattern::ClosedLoopSpots,
+        sort: false,
+        ..CANARY
+    },
+    // Quieter pixels (+-1 count), and noisier ones (+-6) over a background
+    // with a fixed +-2 pattern that the map corrects: noise near v(N+1) is
+    // what sets the admissions.
+    Workload {
+        name: "canary-noise-1",
+        noise: 2.0,
+        sort: false,
+        ..CANARY
+    },
+    Workload {
+        name: "canary-noise-6-patterned",
+        noise: 12.0,
+        patterned_background: true,
         sort: false,
         ..CANARY
     },
@@ -271,7 +301,14 @@ pub fn measure(
     }
     let background = if w.background {
         let map = &mut b.background[..pixels];
-        map.fill(50 * 16);
+        for (k, value) in map.iter_mut().enumerate() {
+            let pattern = if w.patterned_background {
+                background_pattern(k % width, k / width)
+            } else {
+                0
+            };
+            *value = (50 + pattern) * 16;
+        }
         Some(&*map)
     } else {
         None
@@ -288,7 +325,9 @@ pub fn measure(
     }
     let centroider = Centroider::new(Centroid::default());
     let frame = &mut b.frame[..pixels];
-    let mut generator = Generator::new(0x2545_f491_4f6c_dd1d, grid, w.pattern);
+    let mut generator = Generator::new(0x2545_f491_4f6c_dd1d, grid, w.pattern)
+        .with_noise(w.noise)
+        .with_patterned_background(w.patterned_background);
     for _ in 0..w.warmup {
         generator.frame(frame);
         for row in frame.chunks_exact(width) {
