@@ -10,14 +10,14 @@
 use std::io::{self, Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::Arc;
+use std::sync::{mpsc, Arc};
 use std::thread::{self, JoinHandle};
 use std::time::{Duration, Instant};
 
 use tungstenite::{Message, WebSocket};
 
 use super::encode::{self, Totals};
-use super::hub::{Hub, Seen, Setup};
+use super::hub::{Hub, PixelSample, Seen, Setup};
 use super::page;
 use crate::reference::Reference;
 
@@ -218,7 +218,7 @@ fn serve_page(mut ws: WebSocket<TcpStream>, hub: &Hub, stop: &AtomicBool) -> io:
         .set_read_timeout(Some(Duration::from_millis(1)))?;
     let mut seen = Seen::default();
     let mut setup: Option<Arc<Setup>> = None;
-    let mut reference: Option<Reference> = None;
+    let mut encoder = PixelEncoder::start()?;
     let mut meter = RateMeter::new(hub.frames_seen());
     let mut next_pixels = Instant::now();
     let result = (|| -> Result<(), tungstenite::Error> {
@@ -239,7 +239,6 @@ fn serve_page(mut ws: WebSocket<TcpStream>, hub: &Hub, stop: &AtomicBool) -> io:
                 match new {
                     Some(s) => {
                         send(&mut ws, Message::text(encode::setup_message(&s)))?;
-                        reference = Reference::new(&s.config.view()).ok();
                         setup = Some(s);
                     }
                     None => send(&mut ws, Message::text(encode::waiting_message()))?,
@@ -268,13 +267,17 @@ fn serve_page(mut ws: WebSocket<TcpStream>, hub: &Hub, stop: &AtomicBool) -> io:
                         Message::binary(encode::results_message(&sample, n, totals)),
                     )?;
                 }
-                if Instant::now() >= next_pixels {
-                    if let (Some(r), Some(p)) = (&reference, hub.pixels_if_newer(&mut seen)) {
-                        if let Some(m) = encode::pixels_message(r, s, &p) {
-                            next_pixels = Instant::now()
-                                + Duration::from_secs_f64(m.len() as f64 / PIXEL_BYTES_PER_S);
-                            send(&mut ws, Message::binary(m))?;
-                        }
+                if let Some((made_for, m)) = encoder.finished() {
+                    // Not the pixels of a geometry the page no longer has.
+                    if Arc::ptr_eq(&made_for, s) && !m.is_empty() {
+                        next_pixels = Instant::now()
+                            + Duration::from_secs_f64(m.len() as f64 / PIXEL_BYTES_PER_S);
+                        send(&mut ws, Message::binary(m))?;
+                    }
+                }
+                if encoder.idle() && Instant::now() >= next_pixels {
+                    if let Some(p) = hub.pixels_if_newer(&mut seen) {
+                        encoder.submit(s.clone(), p);
                     }
                 }
             }
@@ -289,6 +292,79 @@ fn serve_page(mut ws: WebSocket<TcpStream>, hub: &Hub, stop: &AtomicBool) -> io:
     match result {
         Ok(()) | Err(tungstenite::Error::ConnectionClosed) => Ok(()),
         Err(e) => Err(io::Error::other(e.to_string())),
+    }
+}
+
+/// Builds pixel messages on a thread of its own: each window's selection
+/// by the reference is the costly part (tens of milliseconds for a
+/// 1280x1280 camera), and results keep flowing meanwhile. One job at a
+/// time; pixels sampled meanwhile wait in the hub, where the latest wins.
+struct PixelEncoder {
+    jobs: Option<mpsc::SyncSender<(Arc<Setup>, Arc<PixelSample>)>>,
+    done: mpsc::Receiver<(Arc<Setup>, Vec<u8>)>,
+    busy: bool,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl PixelEncoder {
+    fn start() -> io::Result<PixelEncoder> {
+        let (jobs, inbox) = mpsc::sync_channel::<(Arc<Setup>, Arc<PixelSample>)>(1);
+        let (outbox, done) = mpsc::channel();
+        let thread = thread::Builder::new()
+            .name("brightpix-view-pixels".into())
+            .spawn(move || {
+                let mut reference: Option<(Arc<Setup>, Reference)> = None;
+                for (setup, sample) in inbox {
+                    if !reference
+                        .as_ref()
+                        .is_some_and(|(s, _)| Arc::ptr_eq(s, &setup))
+                    {
+                        reference = Reference::new(&setup.config.view())
+                            .ok()
+                            .map(|r| (setup.clone(), r));
+                    }
+                    let message = reference
+                        .as_ref()
+                        .and_then(|(_, r)| encode::pixels_message(r, &setup, &sample))
+                        .unwrap_or_default();
+                    if outbox.send((setup, message)).is_err() {
+                        return;
+                    }
+                }
+            })?;
+        Ok(PixelEncoder {
+            jobs: Some(jobs),
+            done,
+            busy: false,
+            thread: Some(thread),
+        })
+    }
+
+    fn idle(&self) -> bool {
+        !self.busy
+    }
+
+    fn submit(&mut self, setup: Arc<Setup>, sample: Arc<PixelSample>) {
+        if let Some(jobs) = &self.jobs {
+            self.busy = jobs.try_send((setup, sample)).is_ok();
+        }
+    }
+
+    /// A message built (empty if the frame did not fit the geometry).
+    fn finished(&mut self) -> Option<(Arc<Setup>, Vec<u8>)> {
+        let m = self.done.try_recv().ok()?;
+        self.busy = false;
+        Some(m)
+    }
+}
+
+impl Drop for PixelEncoder {
+    fn drop(&mut self) {
+        // Closing the queue ends the thread after its current job.
+        self.jobs = None;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
     }
 }
 
@@ -332,7 +408,7 @@ mod tests {
     }
 
     #[test]
-    fn a_page_receives_setup_results_and_health() {
+    fn a_page_receives_setup_health_results_and_pixels() {
         let hub = Hub::new();
         let server = Server::start(
             address::bind("127.0.0.1:0".parse().unwrap(), false).unwrap(),
@@ -353,26 +429,34 @@ mod tests {
             flux: 16,
             valid: true,
         };
-        hub.offer(3, false, || vec![Some(entry)], None);
+        let frame = vec![60u16; 112 * 112];
+        hub.offer(3, false, || vec![Some(entry)], Some(&frame));
         let mut kinds = Vec::new();
         let deadline = Instant::now() + Duration::from_secs(5);
-        while Instant::now() < deadline && !kinds.contains(&"results".to_string()) {
+        let done =
+            |k: &[String]| k.iter().any(|x| x == "results") && k.iter().any(|x| x == "pixels");
+        while Instant::now() < deadline && !done(&kinds) {
             match ws.read().unwrap() {
                 Message::Text(t) => {
                     let v: serde_json::Value = serde_json::from_str(t.as_str()).unwrap();
                     kinds.push(v["type"].as_str().unwrap().to_string());
                 }
-                Message::Binary(b) => {
-                    assert_eq!(b[0], encode::KIND_RESULTS);
+                Message::Binary(b) if b[0] == encode::KIND_RESULTS => {
                     assert_eq!(b.len(), 40 + 13 * 49);
                     assert_eq!(b[40 + 12 * 49], 2, "sub-aperture 0 valid");
                     kinds.push("results".into());
+                }
+                Message::Binary(b) => {
+                    // Built on the connection's encoder thread.
+                    assert_eq!(b[0], encode::KIND_PIXELS);
+                    assert_eq!(b.len(), 24 + 3 * 112 * 112);
+                    kinds.push("pixels".into());
                 }
                 _ => {}
             }
         }
         assert_eq!(kinds.first().map(String::as_str), Some("waiting"));
-        for k in ["setup", "health", "results"] {
+        for k in ["setup", "health", "results", "pixels"] {
             assert!(kinds.iter().any(|x| x == k), "{k} missing from {kinds:?}");
         }
         drop(server);
