@@ -54,6 +54,10 @@ pub struct ViewArgs {
     /// With --simulate: the firmware ELF in qemu-system-arm with its own camera.
     #[arg(long, requires = "simulate")]
     qemu: bool,
+    /// Firmware ELF for --qemu (default: firmware/target/thumbv7em-none-eabihf/release/brightpix-qemu,
+    /// built if missing).
+    #[arg(long, value_name = "PATH", requires = "qemu")]
+    elf: Option<PathBuf>,
     /// Recorded results to play back: an .npy set or a results FITS file (docs/OUTPUTS.md).
     #[arg(long, value_name = "PATH")]
     replay: Option<PathBuf>,
@@ -207,6 +211,7 @@ fn simulated_camera(
     let port = if args.qemu {
         let device = QemuDevice::launch(QemuOptions {
             camera,
+            elf: args.elf.clone(),
             ..QemuOptions::default()
         })?;
         let port = device.port().to_string();
