@@ -268,9 +268,61 @@ pub(super) struct ViewFlag {
 impl ViewFlag {
     /// The view, started, if asked for.
     pub fn start(&self) -> Result<Option<crate::view::Attached>> {
-        self.view
-            .as_deref()
-            .map(|spec| crate::view::attach(spec, self.allow_remote))
-            .transpose()
+        let Some(spec) = self.view.as_deref() else {
+            return Ok(None);
+        };
+        let addr = address::parse(spec)?;
+        if !addr.ip().is_loopback() && !self.allow_remote {
+            bail!(
+                "refusing to serve the view on {addr}: it is not a loopback address, so anyone who can reach this machine could watch; add --view-allow-remote to serve it there anyway, or use 127.0.0.1"
+            );
+        }
+        crate::view::attach(spec, self.allow_remote).map(Some)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct WithView {
+        #[command(flatten)]
+        live: ViewFlag,
+        #[arg(long)]
+        out: Option<String>,
+    }
+
+    fn parse(args: &[&str]) -> Result<ViewFlag, clap::Error> {
+        WithView::try_parse_from(std::iter::once("x").chain(args.iter().copied())).map(|w| w.live)
+    }
+
+    #[test]
+    fn view_flag_takes_an_optional_address() {
+        assert_eq!(parse(&[]).unwrap().view, None);
+        // Bare --view, even before another option: the default port on loopback.
+        assert_eq!(
+            parse(&["--view", "--out", "s.npy"])
+                .unwrap()
+                .view
+                .as_deref(),
+            Some("8093")
+        );
+        assert_eq!(
+            parse(&["--view", "127.0.0.1:9000"])
+                .unwrap()
+                .view
+                .as_deref(),
+            Some("127.0.0.1:9000")
+        );
+        // Another address without the flag is refused when the view starts.
+        let remote = parse(&["--view", "0.0.0.0:0"]).unwrap();
+        let error = remote.start().err().expect("refused").to_string();
+        assert!(error.contains("--view-allow-remote"), "{error}");
+        assert!(
+            parse(&["--view-allow-remote"]).is_err(),
+            "the flag needs --view"
+        );
     }
 }
