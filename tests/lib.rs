@@ -171,6 +171,7 @@ pub fn case() -> impl Strategy<Value = (Case, Vec<Vec<u16>>, Vec<usize>)> {
                                         level_filter,
                                         reference_slopes,
                                         min_flux,
+                                        crop: None,
                                     },
                                     frames,
                                     chunks,

@@ -55,6 +55,33 @@ impl Camera {
     }
 }
 
+/// Where the configured camera lies on a larger sensor: the rectangle a
+/// board of a rig captures when several boards share one camera
+/// (PROTOCOL.md §4). The rectangle is columns `x .. x + camera.width` and
+/// rows `y .. y + camera.height` of a `sensor_width` x `sensor_height`
+/// sensor. Windows, maps and pixels stay in the rectangle's coordinates
+/// (the configured camera's), so no arithmetic of SPEC.md changes: the crop
+/// says only which of the sensor's pixels the board's camera interface
+/// keeps. The engine never sees it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, Schema)]
+pub struct Crop {
+    pub x: u16,
+    pub y: u16,
+    pub sensor_width: u16,
+    pub sensor_height: u16,
+}
+
+impl Crop {
+    /// The whole sensor, at `camera`'s bit depth.
+    pub const fn sensor(&self, camera: Camera) -> Camera {
+        Camera {
+            width: self.sensor_width,
+            height: self.sensor_height,
+            bit_depth: camera.bit_depth,
+        }
+    }
+}
+
 /// One sub-aperture: a rectangle of camera pixels, `x`/`y` its top-left
 /// corner (column, row), inclusive.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, Schema)]
@@ -177,6 +204,9 @@ pub struct Config<'a> {
     pub calibration: Calibration<'a>,
     pub selection: Selection<'a>,
     pub centroid: Centroid<'a>,
+    /// Where `camera` lies on a larger sensor, for a board that captures a
+    /// rectangle of it; `None`: the camera is the whole sensor.
+    pub crop: Option<Crop>,
 }
 
 /// Why a configuration was refused. Each names the offending item.
@@ -244,6 +274,16 @@ pub enum ConfigError {
     },
     /// N = 0 for every sub-aperture (a single N, not a per-sub-aperture list).
     PixelCountZeroAll,
+    /// The crop rectangle (the camera) does not lie on its sensor, or the
+    /// sensor is larger than [`MAX_CAMERA_SIDE`].
+    CropOutsideSensor {
+        x: u16,
+        y: u16,
+        width: u16,
+        height: u16,
+        sensor_width: u16,
+        sensor_height: u16,
+    },
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
@@ -341,6 +381,17 @@ impl core::fmt::Display for ConfigError {
                 f,
                 "the number of pixels to select (N) is 0 for every sub-aperture; it must be at least 1"
             ),
+            CropOutsideSensor {
+                x,
+                y,
+                width,
+                height,
+                sensor_width,
+                sensor_height,
+            } => write!(
+                f,
+                "crop rectangle {width}x{height} at ({x}, {y}) does not lie on the {sensor_width}x{sensor_height} sensor (at most {MAX_CAMERA_SIDE} per side)"
+            ),
         }
     }
 }
@@ -366,6 +417,23 @@ impl Config<'_> {
             return Err(ConfigError::BitDepth {
                 bit_depth: cam.bit_depth,
             });
+        }
+        if let Some(crop) = self.crop {
+            let fits = |start: u16, len: u16, side: u16| {
+                (1..=MAX_CAMERA_SIDE).contains(&side) && start as u32 + len as u32 <= side as u32
+            };
+            if !fits(crop.x, cam.width, crop.sensor_width)
+                || !fits(crop.y, cam.height, crop.sensor_height)
+            {
+                return Err(ConfigError::CropOutsideSensor {
+                    x: crop.x,
+                    y: crop.y,
+                    width: cam.width,
+                    height: cam.height,
+                    sensor_width: crop.sensor_width,
+                    sensor_height: crop.sensor_height,
+                });
+            }
         }
         let count = self.windows.len();
         if count == 0 {

@@ -9,7 +9,9 @@
 //! and the file's frame decodes to the message.
 
 use brightpix_protocol::wire::*;
-use brightpix_protocol::{Camera, ConfigError, LevelFilter, MapKind, MemoryKind, SelectionRule};
+use brightpix_protocol::{
+    Camera, ConfigError, Crop, LevelFilter, MapKind, MemoryKind, SelectionRule,
+};
 use serde_json::{json, Value};
 
 const FILE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/protocol-vectors.json");
@@ -93,6 +95,7 @@ fn header(rule: SelectionRule, pixel_count: PixelCountMode) -> ConfigHeader {
         background: Background::Map,
         gain: false,
         reference_slopes: false,
+        crop: None,
     }
 }
 
@@ -133,6 +136,21 @@ fn host_messages(payload: &[u8]) -> Vec<(&'static str, HostMessage<'_>)> {
                         SelectionRule::SubtractMean { count: 3 },
                         PixelCountMode::PerSubaperture,
                     )
+                },
+            },
+        ),
+        (
+            "a board of a rig: the 112x112 camera is the rectangle at (16, 48) of a 240x240 sensor",
+            HostMessage::ConfigBegin {
+                upload_id: 6,
+                header: ConfigHeader {
+                    crop: Some(Crop {
+                        x: 16,
+                        y: 48,
+                        sensor_width: 240,
+                        sensor_height: 240,
+                    }),
+                    ..header(SelectionRule::SubtractNext, PixelCountMode::All(20))
                 },
             },
         ),
@@ -499,6 +517,19 @@ fn device_messages() -> Vec<(&'static str, DeviceMessage<'static>)> {
         },
         DeviceError::NotConfigured,
         DeviceError::NoCamera,
+        DeviceError::Crop(CropFault::Width {
+            width: 118,
+            multiple: 4,
+        }),
+        DeviceError::Crop(CropFault::FramePixels {
+            pixels: 1500,
+            multiple: 8,
+        }),
+        DeviceError::Crop(CropFault::SensorSize {
+            width: 4096,
+            height: 2048,
+            max: 2048,
+        }),
     ];
     for e in errors {
         all.push(("", DeviceMessage::Error(e)));
@@ -523,6 +554,14 @@ fn device_messages() -> Vec<(&'static str, DeviceMessage<'static>)> {
         ConfigError::WindowOutsideCamera { index: 5 },
         ConfigError::PixelCountZero { index: 6 },
         ConfigError::PixelCountZeroAll,
+        ConfigError::CropOutsideSensor {
+            x: 200,
+            y: 0,
+            width: 112,
+            height: 112,
+            sensor_width: 240,
+            sensor_height: 240,
+        },
         ConfigError::PixelCountListLength {
             expected: 49,
             found: 48,

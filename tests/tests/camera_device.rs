@@ -136,6 +136,7 @@ fn config(windows: &[SubapertureWindow]) -> Config<'_> {
             reference_slopes: None,
             min_flux: 0,
         },
+        crop: None,
     }
 }
 
@@ -347,4 +348,78 @@ fn an_overrun_reaches_the_host_as_a_counted_dropped_frame() {
     assert_eq!(status.overruns, 1, "{status:?}");
     assert!(status.frames_dropped >= 1);
     assert_eq!(status.frames_processed, 8);
+}
+
+/// A crop rectangle the camera interface cannot capture (here 17 x 17
+/// pixels: not whole words of its 12-bit bus) is refused at `ConfigBegin`
+/// with the reason, and nothing of the upload is kept (its first chunk
+/// finds no upload); the same windows on a rectangle of whole words are
+/// applied.
+#[test]
+fn a_crop_the_camera_interface_cannot_take_is_refused_before_the_upload() {
+    let windows: Vec<SubapertureWindow> = RegularGrid {
+        x: 0,
+        y: 0,
+        columns: 2,
+        rows: 2,
+        width: 8,
+        height: 8,
+        pitch_x: 8,
+        pitch_y: 8,
+    }
+    .windows()
+    .collect();
+    let part = |width, height| Config {
+        camera: Camera {
+            width,
+            height,
+            bit_depth: 12,
+        },
+        crop: Some(brightpix_protocol::Crop {
+            x: 3,
+            y: 5,
+            sensor_width: 40,
+            sensor_height: 24,
+        }),
+        ..config(&windows)
+    };
+    let link = Link(Rc::new(RefCell::new(LinkState::default())));
+    let sim = SimRing::new(96, Behaviour::default(), 3);
+    let (mut words, mut pixels) = (vec![0u32; 32], vec![0u16; 128]);
+    let source = DcmiSource::new(sim, DataWidth::Bits12, &mut words, &mut pixels);
+    let mut storage = storage(64, CAMERA.pixel_count());
+    let mut device = Device::new(link.clone(), source, storage.buffers(), "sim-dcmi");
+    link.send(&HostMessage::hello(1));
+    for (id, config) in [(1, part(17, 17)), (2, part(18, 17))] {
+        let mut plan = UploadPlan::new(config, id, MAX_CHUNK_BYTES);
+        let mut scratch = vec![0u8; MAX_CHUNK_BYTES];
+        while let Some(m) = plan.next(&mut scratch) {
+            link.send(&m);
+        }
+    }
+    link.0.borrow_mut().closed = true;
+    {
+        let mut run = pin!(device.run());
+        let mut cx = Context::from_waker(Waker::noop());
+        for _ in 0..10_000 {
+            if let Poll::Ready(r) = run.as_mut().poll(&mut cx) {
+                assert_eq!(r, Err(LinkError::Closed));
+                break;
+            }
+        }
+    }
+    let replies = link.replies();
+    assert_eq!(
+        replies[1],
+        Reply::Error(DeviceError::Crop(
+            brightpix_protocol::wire::CropFault::FramePixels {
+                pixels: 289,
+                multiple: 2
+            }
+        ))
+    );
+    assert_eq!(replies[2], Reply::Error(DeviceError::NoUpload));
+    assert!(replies
+        .iter()
+        .any(|r| matches!(r, Reply::Ack(Ack::ConfigApplied { config_id: 2, .. }))));
 }

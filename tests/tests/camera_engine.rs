@@ -59,6 +59,7 @@ fn config<'a>(
             reference_slopes: None,
             min_flux: 0,
         },
+        crop: None,
     }
 }
 
@@ -161,7 +162,7 @@ fn capture(
     let sim = SimRing::new(ring, behaviour, seed);
     let (mut words, mut pixels) = (vec![0u32; 48], vec![0u16; 4 * 48]);
     let mut source = DcmiSource::new(sim.clone(), data, &mut words, &mut pixels);
-    source.start(camera).unwrap();
+    source.start(camera, None).unwrap();
     for f in frames {
         sim.send_frame(data, f);
     }

@@ -77,7 +77,7 @@ fn frames_written_in_any_pieces_come_out_whole() {
     let (mut w, mut p) = (vec![0u32; 5], vec![0u16; 10]);
     let mut camera = SimulatedCamera::new(&ring, DataWidth::Bits16, &mut w, &mut p);
     assert!(ring.capture().is_none());
-    camera.start(CAMERA).unwrap();
+    camera.start(CAMERA, None).unwrap();
     let capture = ring.capture().unwrap();
     assert_eq!(capture.camera, CAMERA);
     let mut runs = Vec::new();
@@ -118,7 +118,7 @@ fn a_producer_a_ring_ahead_is_an_overrun() {
     let ring: SoftRing<16> = SoftRing::new();
     let (mut w, mut p) = (vec![0u32; 16], vec![0u16; 32]);
     let mut camera = SimulatedCamera::new(&ring, DataWidth::Bits16, &mut w, &mut p);
-    camera.start(CAMERA).unwrap();
+    camera.start(CAMERA, None).unwrap();
     let id = ring.capture().unwrap().id;
     for k in 0..3 {
         assert!(ring.write(id, &words(&frame(k))));
@@ -159,7 +159,7 @@ fn writes_of_a_stopped_or_restarted_capture_are_refused() {
     let ring: SoftRing<32> = SoftRing::new();
     let (mut w, mut p) = (vec![0u32; 8], vec![0u16; 16]);
     let mut camera = SimulatedCamera::new(&ring, DataWidth::Bits16, &mut w, &mut p);
-    camera.start(CAMERA).unwrap();
+    camera.start(CAMERA, None).unwrap();
     let first = ring.capture().unwrap().id;
     assert!(ring.write(first, &[1, 2]));
     camera.stop();
@@ -172,7 +172,7 @@ fn writes_of_a_stopped_or_restarted_capture_are_refused() {
         height: 2,
         bit_depth: 12,
     };
-    camera.start(other).unwrap();
+    camera.start(other, None).unwrap();
     let second = ring.capture().unwrap();
     assert_ne!(second.id, first);
     assert_eq!(second.camera, other);
@@ -194,6 +194,6 @@ fn a_frame_of_an_odd_pixel_count_is_refused() {
         height: 3,
         bit_depth: 16,
     };
-    assert_eq!(camera.start(odd), Err(CameraRefused));
+    assert_eq!(camera.start(odd, None), Err(CameraRefused));
     assert!(ring.capture().is_none());
 }

@@ -200,7 +200,7 @@ fn run_scenario(s: &Scenario, max_chunk: usize) -> Outcome {
     let (mut words, mut pixels) = buffers(s.run_words);
     let mut source = DcmiSource::new(sim.clone(), s.data, &mut words, &mut pixels);
     let cam = camera(s.width, s.height, s.data);
-    source.start(cam).unwrap();
+    source.start(cam, None).unwrap();
     for f in 0..s.frames {
         sim.send_frame(s.data, &frame_pixels(f, cam.pixel_count(), s.data.bits()));
     }
@@ -340,7 +340,7 @@ fn eight_and_sixteen_bit_words_become_the_same_rows() {
         let sim = SimRing::new(32, Behaviour::default(), 1);
         let (mut words, mut pixels) = buffers(64);
         let mut source = DcmiSource::new(sim.clone(), data, &mut words, &mut pixels);
-        source.start(camera(12, 2, data)).unwrap();
+        source.start(camera(12, 2, data), None).unwrap();
         let frame: Vec<u16> = (0..24).map(|k| 10 * k as u16 + 1).collect();
         sim.send_frame(data, &frame);
         assert_eq!(poll_next(&mut source), None);
@@ -410,7 +410,7 @@ fn without_invalidation_the_cache_model_serves_stale_words() {
     let (mut words, mut pixels) = buffers(8);
     let mut source = DcmiSource::new(NoInvalidate(sim.clone()), data, &mut words, &mut pixels);
     let cam = camera(16, 16, data);
-    source.start(cam).unwrap();
+    source.start(cam, None).unwrap();
     for f in 0..10 {
         sim.send_frame(data, &frame_pixels(f, cam.pixel_count(), 8));
     }
@@ -441,7 +441,7 @@ fn an_overrun_is_counted_and_never_completes_a_wrong_frame() {
             let (mut words, mut pixels) = buffers(16);
             let mut source = DcmiSource::new(sim.clone(), data, &mut words, &mut pixels);
             let cam = camera(16, 8, data);
-            source.start(cam).unwrap();
+            source.start(cam, None).unwrap();
             let frames = 40;
             for f in 0..frames {
                 sim.send_frame(data, &frame_pixels(f, cam.pixel_count(), data.bits()));
@@ -499,7 +499,7 @@ fn words_overwritten_during_the_copy_are_discarded() {
     let (mut words, mut pixels) = buffers(16);
     let mut source = DcmiSource::new(sim.clone(), data, &mut words, &mut pixels);
     let cam = camera(32, 8, data); // 64 words a frame
-    source.start(cam).unwrap();
+    source.start(cam, None).unwrap();
     for f in 0..4 {
         sim.send_frame(data, &frame_pixels(f, cam.pixel_count(), 8));
     }
@@ -535,7 +535,7 @@ fn frames_of_the_wrong_length_are_dropped_and_the_next_frame_resyncs() {
         let (mut words, mut pixels) = buffers(8);
         let mut source = DcmiSource::new(sim.clone(), data, &mut words, &mut pixels);
         let cam = camera(16, 6, data);
-        source.start(cam).unwrap();
+        source.start(cam, None).unwrap();
         let per_word = data.pixels_per_word();
         let frame_words = cam.pixel_count() / per_word;
         let words_of = |f: u32| {
@@ -593,7 +593,7 @@ fn a_consumer_many_frames_behind_resyncs_on_the_newest_marks() {
     let (mut words, mut pixels) = buffers(2);
     let mut source = DcmiSource::new(sim.clone(), data, &mut words, &mut pixels);
     let cam = camera(4, 4, data);
-    source.start(cam).unwrap();
+    source.start(cam, None).unwrap();
     for f in 0..100 {
         sim.send_frame(data, &frame_pixels(f, 16, 8));
     }
@@ -653,7 +653,7 @@ fn random_stalls_never_deliver_wrong_pixels() {
         let sim = SimRing::new(ring, behaviour, case);
         let (mut words, mut pixels) = buffers(rng.range(1, 20));
         let mut source = DcmiSource::new(sim.clone(), data, &mut words, &mut pixels);
-        source.start(cam).unwrap();
+        source.start(cam, None).unwrap();
         let frames = rng.range(1, 30) as u32;
         for f in 0..frames {
             sim.send_frame(data, &frame_pixels(f, cam.pixel_count(), data.bits()));
@@ -711,7 +711,7 @@ fn start_refuses_what_the_interface_cannot_deliver() {
     let sim = SimRing::new(32, Behaviour::default(), 1);
     let (mut words, mut pixels) = buffers(8);
     let mut source = DcmiSource::new(sim.clone(), DataWidth::Bits12, &mut words, &mut pixels);
-    let refused = |s: &mut DcmiSource<'_, SimRing>, c| s.start(c) == Err(CameraRefused);
+    let refused = |s: &mut DcmiSource<'_, SimRing>, c| s.start(c, None) == Err(CameraRefused);
     // Deeper than the bus.
     assert!(refused(&mut source, camera(8, 8, DataWidth::Bits14)));
     // Not a whole number of words (two 12-bit pixels a word).
@@ -727,11 +727,14 @@ fn start_refuses_what_the_interface_cannot_deliver() {
     assert_eq!(sim.state.borrow().starts, 0);
     // A shallower camera on a wider bus is fine.
     assert!(source
-        .start(Camera {
-            width: 3,
-            height: 2,
-            bit_depth: 10
-        })
+        .start(
+            Camera {
+                width: 3,
+                height: 2,
+                bit_depth: 10
+            },
+            None
+        )
         .is_ok());
 }
 
@@ -742,7 +745,7 @@ fn stop_then_start_begins_again_at_frame_zero() {
     let (mut words, mut pixels) = buffers(64);
     let mut source = DcmiSource::new(sim.clone(), data, &mut words, &mut pixels);
     let cam = camera(8, 4, data);
-    source.start(cam).unwrap();
+    source.start(cam, None).unwrap();
     sim.send_frame(data, &frame_pixels(0, 32, 10));
     sim.advance(1000);
     let run = poll_next(&mut source).unwrap();
@@ -758,7 +761,7 @@ fn stop_then_start_begins_again_at_frame_zero() {
     assert_eq!(poll_next(&mut source), None);
     // Started again (the camera interface begins at the next frame start):
     // frames count from 0 again, at the ring's word 0.
-    source.start(cam).unwrap();
+    source.start(cam, None).unwrap();
     assert_eq!(sim.state.borrow().starts, 2);
     sim.send_frame(data, &frame_pixels(0, 32, 10));
     sim.send_frame(data, &frame_pixels(1, 32, 10));

@@ -22,7 +22,7 @@ use brightpix_protocol::wire::{
     MAX_FRAME_LEN, MAX_PIXEL_BYTES, PROTOCOL_VERSION, SCHEMA_HASH, SLOPES_PER_MESSAGE,
 };
 use brightpix_protocol::{
-    Camera, Config, ConfigError, LevelFilter, MemoryKind, RegularGrid, SelectionRule,
+    Camera, Config, ConfigError, Crop, LevelFilter, MemoryKind, RegularGrid, SelectionRule,
     SubapertureWindow,
 };
 use brightpix_tests::{case, direct, PixelCounts, ProcessingConfig};
@@ -246,6 +246,7 @@ fn config_b() -> Owned {
                 .collect(),
         ),
         min_flux: 100,
+        crop: None,
     }
 }
 
@@ -1166,7 +1167,7 @@ impl PixelSource for TestCamera {
         PixelSourceKind::Camera
     }
 
-    fn start(&mut self, camera: Camera) -> Result<(), CameraRefused> {
+    fn start(&mut self, camera: Camera, _crop: Option<Crop>) -> Result<(), CameraRefused> {
         if camera.width as usize != self.width {
             return Err(CameraRefused);
         }

@@ -38,6 +38,7 @@ fn config<'a>(
             level_filter: None,
         },
         centroid: Centroid::default(),
+        crop: None,
     }
 }
 

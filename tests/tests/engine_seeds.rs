@@ -95,6 +95,7 @@ fn case_at(
         level_filter: filter.then_some(LevelFilter { gain_shift: 2 }),
         reference_slopes: None,
         min_flux: 0,
+        crop: None,
     }
 }
 

@@ -85,11 +85,13 @@
 //! frame: the device loop reports the frame as incomplete, and results it
 //! sent for that frame's earlier rows are not followed by `FrameDone`.
 
+pub mod crop;
 pub mod packing;
 pub mod ring;
 pub mod soft;
 mod source;
 
+pub use crop::{dcmi_check, DcmiCropRegisters, SensorCrop};
 pub use packing::DataWidth;
 pub use ring::{
     DmaProgress, DmaRing, FrameMarks, Mark, CACHE_LINE_BYTES, CACHE_LINE_WORDS, MARK_SLOTS,

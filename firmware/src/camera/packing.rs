@@ -42,6 +42,18 @@ impl DataWidth {
         }
     }
 
+    /// The narrowest bus that carries `bit_depth`-bit pixels (a DCMI mode up
+    /// to 14 bits, the 16-bit bus above).
+    pub const fn holding(bit_depth: u8) -> DataWidth {
+        match bit_depth {
+            0..=8 => DataWidth::Bits8,
+            9..=10 => DataWidth::Bits10,
+            11..=12 => DataWidth::Bits12,
+            13..=14 => DataWidth::Bits14,
+            _ => DataWidth::Bits16,
+        }
+    }
+
     /// Pixels in one 32-bit word.
     pub const fn pixels_per_word(self) -> usize {
         match self {

@@ -4,6 +4,9 @@
 use core::sync::atomic::{AtomicU32, Ordering};
 use core::task::Waker;
 
+use brightpix_protocol::wire::CropFault;
+use brightpix_protocol::{Camera, Crop};
+
 /// Bytes in one Cortex-M7 D-cache line.
 pub const CACHE_LINE_BYTES: usize = 32;
 /// 32-bit words in one D-cache line.
@@ -75,6 +78,23 @@ pub trait DmaRing {
     /// Wakes `waker` at the next DMA or camera event (half/full transfer,
     /// frame end, and optionally every few lines).
     fn register_waker(&mut self, waker: &Waker);
+
+    /// Why the camera interface cannot crop `camera` (a configuration's
+    /// camera: the rectangle) at `crop` of its sensor. By default any
+    /// rectangle: a simulated camera crops in software
+    /// ([`SensorCrop`](super::crop::SensorCrop)); the source checks that
+    /// frames are whole words.
+    fn check_crop(&self, camera: Camera, crop: Crop) -> Result<(), CropFault> {
+        let _ = (camera, crop);
+        Ok(())
+    }
+
+    /// The crop the next [`start`](Self::start) captures (`None`: the whole
+    /// sensor, `camera`). By default nothing: a simulated camera's producer
+    /// learns it from its ring and crops.
+    fn set_crop(&mut self, camera: Camera, crop: Option<Crop>) {
+        let _ = (camera, crop);
+    }
 }
 
 /// Where the DMA was at one moment: half-ring events counted and the index

@@ -12,7 +12,10 @@
 //! is the consumer's [`DmaRing`], and [`SimulatedCamera`] the device's
 //! [`PixelSource`]: a [`DcmiSource`] that also tells the producer which
 //! geometry the capture expects (a simulated camera makes frames of the
-//! configured camera, where a real one has its own).
+//! configured camera, where a real one has its own). With a crop (a board
+//! of a rig), the producer makes frames of the whole sensor and keeps the
+//! rectangle with a [`SensorCrop`](super::crop::SensorCrop), as the DCMI's
+//! crop would.
 //!
 //! Captures are numbered: [`SoftRing::capture`] gives the producer the
 //! current one, and writes for any other (a capture stopped or restarted
@@ -26,8 +29,8 @@ use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use core::task::Waker;
 
 use atomic_waker::AtomicWaker;
-use brightpix_protocol::wire::PixelSourceKind;
-use brightpix_protocol::Camera;
+use brightpix_protocol::wire::{CropFault, PixelSourceKind};
+use brightpix_protocol::{Camera, Crop};
 
 use super::packing::DataWidth;
 use super::ring::{DmaProgress, DmaRing, FrameMarks, RING_GRANULE_WORDS};
@@ -35,11 +38,20 @@ use super::source::{CameraStats, DcmiSource};
 use crate::device::{CameraRefused, PixelRun, PixelSource};
 
 /// A capture as the producer sees it: its number and the geometry of its
-/// frames.
+/// frames: `camera`, cut at `crop` from a larger sensor if there is one
+/// (the producer then makes the sensor's frames and keeps the rectangle).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SoftCapture {
     pub id: u32,
     pub camera: Camera,
+    pub crop: Option<Crop>,
+}
+
+impl SoftCapture {
+    /// The frames the camera makes: the whole sensor.
+    pub fn sensor(&self) -> Camera {
+        self.crop.map_or(self.camera, |c| c.sensor(self.camera))
+    }
 }
 
 /// The ring of `WORDS` 32-bit words (a multiple of
@@ -56,6 +68,11 @@ pub struct SoftRing<const WORDS: usize> {
     /// The expected camera: `width << 16 | height`, and the bit depth.
     size: AtomicU32,
     bit_depth: AtomicU32,
+    /// The crop, if any: `x << 16 | y` and `sensor_width << 16 |
+    /// sensor_height`.
+    cropped: AtomicBool,
+    crop_origin: AtomicU32,
+    sensor_size: AtomicU32,
     marks: FrameMarks,
     waker: AtomicWaker,
 }
@@ -78,6 +95,9 @@ impl<const WORDS: usize> SoftRing<WORDS> {
             running: AtomicBool::new(false),
             size: AtomicU32::new(0),
             bit_depth: AtomicU32::new(0),
+            cropped: AtomicBool::new(false),
+            crop_origin: AtomicU32::new(0),
+            sensor_size: AtomicU32::new(0),
             marks: FrameMarks::new(),
             waker: AtomicWaker::new(),
         }
@@ -103,6 +123,8 @@ impl<const WORDS: usize> SoftRing<WORDS> {
         self.locked(|| {
             self.running.load(Ordering::Relaxed).then(|| {
                 let size = self.size.load(Ordering::Relaxed);
+                let origin = self.crop_origin.load(Ordering::Relaxed);
+                let sensor = self.sensor_size.load(Ordering::Relaxed);
                 SoftCapture {
                     id: self.captures.load(Ordering::Relaxed),
                     camera: Camera {
@@ -110,6 +132,12 @@ impl<const WORDS: usize> SoftRing<WORDS> {
                         height: size as u16,
                         bit_depth: self.bit_depth.load(Ordering::Relaxed) as u8,
                     },
+                    crop: self.cropped.load(Ordering::Relaxed).then_some(Crop {
+                        x: (origin >> 16) as u16,
+                        y: origin as u16,
+                        sensor_width: (sensor >> 16) as u16,
+                        sensor_height: sensor as u16,
+                    }),
                 }
             })
         })
@@ -193,7 +221,7 @@ impl<const WORDS: usize> SoftRing<WORDS> {
 
     // --- the consumer's side ----------------------------------------------------------
 
-    fn set_camera(&self, camera: Camera) {
+    fn set_camera(&self, camera: Camera, crop: Option<Crop>) {
         self.locked(|| {
             self.size.store(
                 (camera.width as u32) << 16 | camera.height as u32,
@@ -201,6 +229,15 @@ impl<const WORDS: usize> SoftRing<WORDS> {
             );
             self.bit_depth
                 .store(camera.bit_depth as u32, Ordering::Relaxed);
+            self.cropped.store(crop.is_some(), Ordering::Relaxed);
+            if let Some(c) = crop {
+                self.crop_origin
+                    .store((c.x as u32) << 16 | c.y as u32, Ordering::Relaxed);
+                self.sensor_size.store(
+                    (c.sensor_width as u32) << 16 | c.sensor_height as u32,
+                    Ordering::Relaxed,
+                );
+            }
         });
     }
 }
@@ -305,9 +342,13 @@ impl<const WORDS: usize> PixelSource for SimulatedCamera<'_, '_, WORDS> {
         PixelSourceKind::Camera
     }
 
-    fn start(&mut self, camera: Camera) -> Result<(), CameraRefused> {
-        self.ring.set_camera(camera);
-        self.source.start(camera)
+    fn check_crop(&self, camera: Camera, crop: Crop) -> Result<(), CropFault> {
+        self.source.check_crop(camera, crop)
+    }
+
+    fn start(&mut self, camera: Camera, crop: Option<Crop>) -> Result<(), CameraRefused> {
+        self.ring.set_camera(camera, crop);
+        self.source.start(camera, crop)
     }
 
     fn stop(&mut self) {

@@ -3,9 +3,10 @@
 use core::future::poll_fn;
 use core::task::Poll;
 
-use brightpix_protocol::wire::PixelSourceKind;
-use brightpix_protocol::Camera;
+use brightpix_protocol::wire::{CropFault, PixelSourceKind};
+use brightpix_protocol::{Camera, Crop};
 
+use super::crop::frame_check;
 use super::packing::{unpack, DataWidth};
 use super::ring::{
     distance, DmaProgress, DmaRing, Mark, CACHE_LINE_WORDS, MARK_SLOTS, MAX_HOLD_BACK_WORDS,
@@ -382,18 +383,31 @@ impl<R: DmaRing> PixelSource for DcmiSource<'_, R> {
         PixelSourceKind::Camera
     }
 
+    /// A frame of the rectangle must be whole words of the bus, and the
+    /// ring's camera interface able to crop it.
+    fn check_crop(&self, camera: Camera, crop: Crop) -> Result<(), CropFault> {
+        frame_check(camera, self.width.pixels_per_word())?;
+        self.ring.check_crop(camera, crop)
+    }
+
     /// Starts the DMA and the camera interface for frames of `camera`'s
-    /// geometry. Refused if the camera's bit depth is above the interface's
-    /// data width, or a frame is not a whole number of 32-bit words.
-    fn start(&mut self, camera: Camera) -> Result<(), CameraRefused> {
+    /// geometry, cropped at `crop` of the sensor if given. Refused if the
+    /// camera's bit depth is above the interface's data width, a frame is
+    /// not a whole number of 32-bit words, or the interface cannot crop
+    /// the rectangle.
+    fn start(&mut self, camera: Camera, crop: Option<Crop>) -> Result<(), CameraRefused> {
         let per_word = self.width.pixels_per_word();
         let pixels = camera.pixel_count();
         if camera.bit_depth > self.width.bits() || pixels == 0 || !pixels.is_multiple_of(per_word) {
             return Err(CameraRefused);
         }
+        if let Some(crop) = crop {
+            self.check_crop(camera, crop).map_err(|_| CameraRefused)?;
+        }
         if self.run.is_some() {
             self.ring.stop();
         }
+        self.ring.set_crop(camera, crop);
         self.ring.marks().reset();
         let origin = DmaProgress {
             half_events: self.ring.start(),

@@ -495,9 +495,18 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
         }
         let reply = match message {
             HostMessage::Hello { .. } => unreachable_hello(),
-            HostMessage::ConfigBegin { upload_id, header } => self
-                .begin(upload_id, header, staging)
-                .map(|upload_id| Ack::UploadStarted { upload_id }),
+            HostMessage::ConfigBegin { upload_id, header } => {
+                // Before anything is stored: a rectangle the camera
+                // interface cannot crop is refused outright.
+                let crop = match header.crop {
+                    Some(crop) => source
+                        .check_crop(header.camera, crop)
+                        .map_err(DeviceError::Crop),
+                    None => Ok(()),
+                };
+                self.begin(upload_id, header, crop, staging)
+                    .map(|upload_id| Ack::UploadStarted { upload_id })
+            }
             HostMessage::ConfigChunk {
                 upload_id,
                 table,
@@ -577,14 +586,16 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
                 } else {
                     match engine {
                         None => Err(DeviceError::NotConfigured),
-                        Some(engine) => match source.start(engine.config().camera) {
-                            Ok(()) => {
-                                self.capture = Some(Capture { frames, done: 0 });
-                                log_info!("device: capture of {=u32} frames started", frames);
-                                Ok(Ack::CaptureStarted { frames })
+                        Some(engine) => {
+                            match source.start(engine.config().camera, engine.config().crop) {
+                                Ok(()) => {
+                                    self.capture = Some(Capture { frames, done: 0 });
+                                    log_info!("device: capture of {=u32} frames started", frames);
+                                    Ok(Ack::CaptureStarted { frames })
+                                }
+                                Err(CameraRefused) => Err(DeviceError::NoCamera),
                             }
-                            Err(CameraRefused) => Err(DeviceError::NoCamera),
-                        },
+                        }
                     }
                 }
             }

@@ -1,8 +1,10 @@
 //! Where pixels come from besides `PixelRows` messages on the link.
 
 use brightpix_protocol::wire::tables::pixels_from_le;
-use brightpix_protocol::wire::{decode, FrameReader, HostMessage, PixelSourceKind, Received};
-use brightpix_protocol::Camera;
+use brightpix_protocol::wire::{
+    decode, CropFault, FrameReader, HostMessage, PixelSourceKind, Received,
+};
+use brightpix_protocol::{Camera, Crop};
 use embedded_io_async::Read;
 
 /// A run of raw pixels of one frame, in raster order: pixels
@@ -29,10 +31,20 @@ pub trait PixelSource {
     /// Reported to the host in `HelloReply`.
     fn kind(&self) -> PixelSourceKind;
 
-    /// Starts capturing frames of `camera`'s geometry (`Capture`). Only a
+    /// Why the source cannot capture `camera` (a configuration's camera:
+    /// the rectangle) at `crop` of a larger sensor; asked at `ConfigBegin`,
+    /// before anything is uploaded. By default any rectangle: pixels that
+    /// come from the host are cropped by the host.
+    fn check_crop(&self, camera: Camera, crop: Crop) -> Result<(), CropFault> {
+        let _ = (camera, crop);
+        Ok(())
+    }
+
+    /// Starts capturing frames of `camera`'s geometry (`Capture`), cut from
+    /// a larger sensor at `crop` if there is one. Only a
     /// [`PixelSourceKind::Camera`] source can; the default refuses.
-    fn start(&mut self, camera: Camera) -> Result<(), CameraRefused> {
-        let _ = camera;
+    fn start(&mut self, camera: Camera, crop: Option<Crop>) -> Result<(), CameraRefused> {
+        let _ = (camera, crop);
         Err(CameraRefused)
     }
 

@@ -20,16 +20,19 @@ pub(super) struct Upload {
 }
 
 impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
+    /// `crop`: the pixel source's verdict on the header's crop rectangle.
     pub(super) fn begin(
         &mut self,
         upload_id: u32,
         header: ConfigHeader,
+        crop: Result<(), DeviceError>,
         staging: &mut ConfigSlot<'_>,
     ) -> Result<u32, DeviceError> {
         // A new upload always discards the one in progress, even if refused.
         self.upload = None;
         staging.header = None;
         vet::check_header(&header, &self.capabilities)?;
+        crop?;
         // The digest covers the header too (PROTOCOL.md §7).
         let mut digest = CRC32.digest();
         let mut encoded = [0u8; ConfigHeader::MAX_ENCODED_LEN];

@@ -144,7 +144,9 @@ impl ErrorSite {
     ) -> ConfigFileError {
         use ConfigError::*;
         let (field, message) = match e {
-            CameraSize { .. } | BitDepth { .. } => ("camera", e.to_string()),
+            CameraSize { .. } | BitDepth { .. } | CropOutsideSensor { .. } => {
+                ("camera", e.to_string())
+            }
             NoSubapertures | TooManySubapertures { .. } => (sources.windows, e.to_string()),
             EmptyWindow { index } => (
                 sources.windows,

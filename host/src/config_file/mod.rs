@@ -42,7 +42,7 @@ mod values;
 use std::path::Path;
 
 use brightpix_protocol::{
-    Calibration, Camera, Centroid, Config, ConfigError, LevelFilter, PixelCount, RegularGrid,
+    Calibration, Camera, Centroid, Config, ConfigError, Crop, LevelFilter, PixelCount, RegularGrid,
     Selection, SelectionRule, SubapertureWindow,
 };
 
@@ -113,6 +113,10 @@ pub struct ProcessingConfig {
     pub reference_slopes: Option<Vec<[i32; 2]>>,
     /// Minimum flux in 1/16 count.
     pub min_flux: i64,
+    /// Where `camera` lies on a larger sensor: a board's part of a rig
+    /// (`rig::board_config` sets it; the TOML file has no key for it, a
+    /// rig file gives it, and saving such a configuration is refused).
+    pub crop: Option<Crop>,
 }
 
 impl ProcessingConfig {
@@ -132,6 +136,7 @@ impl ProcessingConfig {
             level_filter: None,
             reference_slopes: None,
             min_flux: 0,
+            crop: None,
         }
     }
 
@@ -169,6 +174,7 @@ impl ProcessingConfig {
                 reference_slopes: self.reference_slopes.as_deref(),
                 min_flux: self.min_flux,
             },
+            crop: self.crop,
         }
     }
 

@@ -38,6 +38,15 @@ impl ProcessingConfig {
                 format!("configuration name {name:?} must be a plain file name"),
             ));
         }
+        if let Some(crop) = self.crop {
+            return Err(error(
+                ConfigFileErrorKind::Value,
+                format!(
+                    "this is a board's part of a rig (the rectangle at ({}, {}) of a {}x{} sensor), which a configuration file cannot hold: save the rig (brightpix rig plan --out) instead",
+                    crop.x, crop.y, crop.sensor_width, crop.sensor_height
+                ),
+            ));
+        }
         if let Err(e) = self.validate() {
             return Err(error(
                 ConfigFileErrorKind::Invalid(e),

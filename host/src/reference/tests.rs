@@ -41,6 +41,7 @@ fn config(
             level_filter: None,
         },
         centroid: Centroid::default(),
+        crop: None,
     }
 }
 

@@ -148,7 +148,7 @@ impl Rig {
                     whole.camera.height
                 ));
             }
-            kind.check_crop(rect, whole.camera.bit_depth)
+            kind.check_crop(rect, &whole.camera)
                 .map_err(|e| format!("board {name:?}: rectangle {}: {e}", rect.describe()))?;
             if windows.is_empty() {
                 return Err(format!("board {name:?} has no sub-apertures"));
@@ -407,7 +407,7 @@ mod tests {
                 "{e}\nexpected: {expected}"
             );
         }
-        // An odd width on a 16-bit camera: the DCMI crops whole words.
+        // An odd width: the DCMI crops whole words of 4 pixels.
         let path = write_rig(
             &dir,
             &format!(
@@ -416,6 +416,9 @@ mod tests {
             ),
         );
         let e = Rig::load(&path).unwrap_err().to_string();
-        assert!(e.contains("multiple of 2"), "{e}");
+        assert!(
+            e.contains("cannot crop") && e.contains("multiple of 4"),
+            "{e}"
+        );
     }
 }

@@ -4,11 +4,12 @@
 //! A board that sees only a rectangle runs an ordinary configuration whose
 //! camera is that rectangle: windows moved by the rectangle's origin, maps
 //! cut to it, per-window values (N, reference slopes) taken in the board's
-//! window order. Slopes are measured from each window's centre and every
+//! window order, and the rectangle's place on the sensor as its `crop`
+//! (PROTOCOL.md §4), which the board's camera interface crops. Slopes are measured from each window's centre and every
 //! rule of SPEC.md works inside one window, so the board's results are the
 //! whole camera's, bit for bit, for the windows it holds.
 
-use brightpix_protocol::{Camera, SubapertureWindow};
+use brightpix_protocol::{Camera, Crop, SubapertureWindow};
 use serde::{Deserialize, Serialize};
 
 use crate::config_file::{PixelCounts, ProcessingConfig};
@@ -118,6 +119,14 @@ pub fn board_config(
         .as_ref()
         .map(|r| windows.iter().map(|&k| r[k]).collect());
     config.min_flux = whole.min_flux;
+    // On the wire: the board's camera interface crops the rectangle from
+    // the sensor its camera's bus carries.
+    config.crop = Some(Crop {
+        x: rect.x,
+        y: rect.y,
+        sensor_width: whole.camera.width,
+        sensor_height: whole.camera.height,
+    });
     config
 }
 

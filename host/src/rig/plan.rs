@@ -7,7 +7,9 @@
 //! balancing the predicted instructions per frame; each board captures the
 //! bounding rectangle of its windows, widened as its crop hardware needs.
 
-use brightpix_protocol::{Camera, SubapertureWindow};
+use brightpix_firmware::camera::crop::{frame_check, DCMI_WIDTH_MULTIPLE};
+use brightpix_firmware::camera::{dcmi_check, DataWidth};
+use brightpix_protocol::{Camera, Crop, SubapertureWindow};
 
 use super::part::Rectangle;
 use crate::config_file::ProcessingConfig;
@@ -125,43 +127,40 @@ impl BoardKind {
         }
     }
 
-    /// Pixels the crop's width must be a multiple of: the DCMI packs the
-    /// captured bytes into 32-bit words and its capture count must give
-    /// whole words (one byte a pixel up to 8 bits, two above). QEMU boards
-    /// take their pixels from the host: any rectangle.
-    pub fn width_multiple(self, bit_depth: u8) -> u16 {
+    /// Pixels the crop's width must be a multiple of: the DCMI's (4 at
+    /// every bit depth, `brightpix_firmware::camera::crop`). The QEMU
+    /// boards' simulated camera crops any width.
+    pub fn width_multiple(self) -> u16 {
         match self {
-            BoardKind::Stm32h743 if bit_depth <= 8 => 4,
-            BoardKind::Stm32h743 => 2,
+            BoardKind::Stm32h743 => DCMI_WIDTH_MULTIPLE,
             BoardKind::QemuM4 | BoardKind::QemuM7 => 1,
         }
     }
 
-    /// Why this board cannot capture `rect` of a camera of `bit_depth`, if
-    /// it cannot.
-    pub fn check_crop(self, rect: &Rectangle, bit_depth: u8) -> Result<(), String> {
-        let multiple = self.width_multiple(bit_depth);
-        if !rect.width.is_multiple_of(multiple) {
-            return Err(format!(
-                "the {} crops whole 32-bit words: a {bit_depth}-bit rectangle's width must be a multiple of {multiple} pixels, not {}",
-                self.name(),
-                rect.width
-            ));
-        }
-        // DCMI_CWSTRT/CWSIZE field widths: HOFFCNT and CAPCNT 14 bits (pixel
-        // clocks), VST 13 bits, VLINE 14 bits (lines).
-        if self == BoardKind::Stm32h743
-            && (rect.x >= 1 << 14
-                || rect.width > 1 << 14
-                || rect.y >= 1 << 13
-                || rect.height > 1 << 14)
-        {
-            return Err(format!(
-                "the DCMI crop cannot reach {}: x < 16384, width <= 16384, y < 8192, height <= 16384",
-                rect.describe()
-            ));
-        }
-        Ok(())
+    /// Why this board's camera interface cannot crop `rect` of `camera`,
+    /// if it cannot: the firmware's own rules, which the board applies
+    /// again when it is configured (`Error(Crop)` at `ConfigBegin`). The
+    /// STM32H743's DCMI with the narrowest mode that holds the bit depth;
+    /// the QEMU boards' simulated camera with its 16-bit bus.
+    pub fn check_crop(self, rect: &Rectangle, camera: &Camera) -> Result<(), String> {
+        let part = Camera {
+            width: rect.width,
+            height: rect.height,
+            bit_depth: camera.bit_depth,
+        };
+        let crop = Crop {
+            x: rect.x,
+            y: rect.y,
+            sensor_width: camera.width,
+            sensor_height: camera.height,
+        };
+        let verdict = match self {
+            BoardKind::Stm32h743 => dcmi_check(DataWidth::holding(camera.bit_depth), part, crop),
+            BoardKind::QemuM4 | BoardKind::QemuM7 => {
+                frame_check(part, DataWidth::Bits16.pixels_per_word())
+            }
+        };
+        verdict.map_err(|e| format!("the {}'s camera interface cannot crop it: {e}", self.name()))
     }
 }
 
@@ -251,7 +250,7 @@ fn rectangle_for(
         .map(|&k| windows[k].y + windows[k].height)
         .max()
         .unwrap_or(0);
-    let multiple = board.width_multiple(camera.bit_depth);
+    let multiple = board.width_multiple();
     let width = (x1 - x0).div_ceil(multiple) * multiple;
     if width > camera.width {
         return Err(format!(
@@ -262,13 +261,22 @@ fn rectangle_for(
             members.last().unwrap_or(&0)
         ));
     }
-    let x = x0.min(camera.width - width);
-    Ok(Rectangle {
-        x,
-        y: y0,
-        width,
-        height: y1 - y0,
-    })
+    // The narrowest rectangle the board can crop: wider by a multiple at a
+    // time when its frame is not whole words or bursts (an odd height).
+    let mut last = String::new();
+    for width in (width..=camera.width).step_by(multiple as usize).take(4) {
+        let rect = Rectangle {
+            x: x0.min(camera.width - width),
+            y: y0,
+            width,
+            height: y1 - y0,
+        };
+        match board.check_crop(&rect, camera) {
+            Ok(()) => return Ok(rect),
+            Err(e) => last = format!("rectangle {}: {e}", rect.describe()),
+        }
+    }
+    Err(last)
 }
 
 /// The shares of `boards` contiguous groups of `bands` that minimise the
@@ -609,9 +617,32 @@ mod tests {
             width: 6,
             height: 4,
         };
-        let e = BoardKind::Stm32h743.check_crop(&odd, 8).unwrap_err();
-        assert!(e.contains("multiple of 4"), "{e}");
-        assert!(BoardKind::Stm32h743.check_crop(&odd, 12).is_ok());
+        let camera = |bit_depth| Camera {
+            width: 40,
+            height: 30,
+            bit_depth,
+        };
+        for bit_depth in [8, 12] {
+            let e = BoardKind::Stm32h743
+                .check_crop(&odd, &camera(bit_depth))
+                .unwrap_err();
+            assert!(e.contains("multiple of 4"), "{e}");
+        }
+        let square = Rectangle { width: 8, ..odd };
+        assert!(BoardKind::Stm32h743
+            .check_crop(&square, &camera(12))
+            .is_ok());
+        // 32 pixels: two bursts of the 8-bit bus (16 pixels each); 24 are not.
+        assert!(BoardKind::Stm32h743.check_crop(&square, &camera(8)).is_ok());
+        let short = Rectangle {
+            height: 3,
+            ..square
+        };
+        let e = BoardKind::Stm32h743
+            .check_crop(&short, &camera(8))
+            .unwrap_err();
+        assert!(e.contains("24 pixels") && e.contains("16"), "{e}");
+        assert!(BoardKind::QemuM4.check_crop(&short, &camera(8)).is_ok());
     }
 
     #[test]

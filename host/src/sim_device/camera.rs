@@ -14,6 +14,12 @@
 //!   camera and DMA: it writes each frame into the ring as a rolling
 //!   readout (a few rows at a time across the frame period) at its frame
 //!   rate, marking each frame's end, and never waits for the device.
+//!
+//! With a crop (a board of a rig) the camera makes the whole sensor's
+//! frames (the same ones for every board on the same seed: one camera) and
+//! the board keeps its rectangle of each, through the firmware's
+//! `SensorCrop`, the DCMI crop's software twin: in-process by this
+//! module's thread, on the QEMU board by its own camera task.
 //! - [`QemuCameraHost`]: for the QEMU board, whose own task paces the
 //!   frames (`firmware/boards/qemu/src/camera.rs`): the host answers each
 //!   capture request the board appends to `DIR/requests` by writing that
@@ -30,7 +36,7 @@ use std::sync::{mpsc, Arc};
 use std::thread::{self, JoinHandle};
 use std::time::{Duration, Instant};
 
-use brightpix_firmware::camera::SoftRing;
+use brightpix_firmware::camera::{DataWidth, SensorCrop, SoftRing};
 use brightpix_protocol::Camera;
 
 use super::{make_fifo, spawn};
@@ -169,14 +175,8 @@ fn frames_ahead(camera: Camera, seed: u64, batch: usize) -> io::Result<mpsc::Rec
 /// Frames generated per batch.
 const BATCH: usize = 4;
 
-/// Pixels as the 16-bit bus packs them: two per word, the first in the low
-/// half (`DataWidth::Bits16`).
-fn pack16(pixels: &[u16]) -> Vec<u32> {
-    pixels
-        .chunks(2)
-        .map(|p| u32::from(p[0]) | u32::from(*p.get(1).unwrap_or(&0)) << 16)
-        .collect()
-}
+/// The in-process device's camera bus (`sim_device::in_process`).
+pub const IN_PROCESS_BUS: DataWidth = DataWidth::Bits16;
 
 // --- the in-process device's camera ---------------------------------------------------
 
@@ -225,13 +225,17 @@ fn run_in_process(ring: &CameraRing, options: CameraOptions, stop: &AtomicBool) 
             }
         };
         last = capture.id;
-        let Ok(frames) = frames_ahead(capture.camera, options.spec.seed, BATCH) else {
+        let Ok(frames) = frames_ahead(capture.sensor(), options.spec.seed, BATCH) else {
             continue;
         };
+        let mut crop = SensorCrop::new(IN_PROCESS_BUS, capture.camera, capture.crop);
         let mut start = Instant::now();
         'frames: while !stop.load(Ordering::Relaxed) {
             let Ok(frame) = frames.recv() else { break };
-            let words = pack16(&frame);
+            let mut words = vec![0; frame.len() / 2 + 1];
+            let n = crop.keep_packed(&frame, &mut words);
+            crop.end_frame();
+            words.truncate(n);
             let piece = words.len().div_ceil(READOUT_PIECES).max(1);
             for (i, part) in words.chunks(piece).enumerate() {
                 sleep_until(
@@ -471,8 +475,18 @@ mod tests {
         assert_eq!(parse_request("stop 3"), None);
     }
 
+    /// Without a crop the bus carries every pixel, the first of a pair in
+    /// the low half of its word.
     #[test]
-    fn pack16_puts_the_first_pixel_low() {
-        assert_eq!(pack16(&[1, 2, 0xFFFF, 4]), vec![0x0002_0001, 0x0004_FFFF]);
+    fn the_bus_puts_the_first_pixel_low() {
+        let camera = Camera {
+            width: 2,
+            height: 2,
+            bit_depth: 16,
+        };
+        let mut crop = SensorCrop::new(IN_PROCESS_BUS, camera, None);
+        let mut words = [0; 3];
+        let n = crop.keep_packed(&[1, 2, 0xFFFF, 4], &mut words);
+        assert_eq!(words[..n], [0x0002_0001, 0x0004_FFFF]);
     }
 }

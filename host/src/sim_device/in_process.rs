@@ -10,12 +10,12 @@ use std::sync::{Arc, Mutex};
 use std::thread::{self, JoinHandle};
 use std::time::Duration;
 
-use brightpix_firmware::camera::{DataWidth, SimulatedCamera};
+use brightpix_firmware::camera::SimulatedCamera;
 use brightpix_firmware::device::{Device, LinkOnly, PixelRowsStream, PixelSource};
 use brightpix_protocol::wire::{MAX_FRAME_LEN, MAX_PIXEL_BYTES};
 use serialport::{SerialPort, TTYPort};
 
-use super::camera::{CameraOptions, CameraRing, InProcessCamera};
+use super::camera::{CameraOptions, CameraRing, InProcessCamera, IN_PROCESS_BUS};
 use super::link::{
     block_on, read_fifo, serve_unix, Inbox, InboxReader, Outlet, PtyWriter, SimLink,
 };
@@ -162,7 +162,7 @@ impl InProcessDevice {
                     let mut words = vec![0u32; CAMERA_RUN_WORDS];
                     let mut pixels = vec![0u16; 2 * CAMERA_RUN_WORDS];
                     let source =
-                        SimulatedCamera::new(&ring, DataWidth::Bits16, &mut words, &mut pixels);
+                        SimulatedCamera::new(&ring, IN_PROCESS_BUS, &mut words, &mut pixels);
                     run_device(Device::new(link, source, storage.buffers(), board))
                 }
                 (None, None) => run_device(Device::new(link, LinkOnly, storage.buffers(), board)),

@@ -57,7 +57,7 @@ use heapless::Vec;
 use postcard_schema::Schema;
 use serde::{Deserialize, Serialize};
 
-use crate::config::{Camera, ConfigError, LevelFilter, MapKind, MemoryKind, SelectionRule};
+use crate::config::{Camera, ConfigError, Crop, LevelFilter, MapKind, MemoryKind, SelectionRule};
 
 pub use frame::{
     decode, decode_body, encode, hello_in_body, hello_prefix, unstuff, Crc32Digest, FrameReader,
@@ -76,8 +76,10 @@ pub use tables::{PixelRowsPlan, UploadPlan};
 /// watchdog in `Status`. Version 3: the configuration's digest (the
 /// commit CRC covers the header too, and `Status` reports it), a constant
 /// background as a scalar, N = 0 for every sub-aperture as its own fault.
+/// Version 4: the crop rectangle of a board that captures part of a
+/// sensor (`ConfigHeader.crop`, `DeviceError::Crop`).
 /// PROTOCOL.md §12 lists every version.
-pub const PROTOCOL_VERSION: u16 = 3;
+pub const PROTOCOL_VERSION: u16 = 4;
 
 /// Largest postcard encoding of a message that every frame buffer holds.
 pub const MAX_MESSAGE_LEN: usize = 1024;
@@ -107,7 +109,7 @@ tables little-endian: windows = x,y,width,height u16; pixel_counts u16; backgrou
 reference_slopes = x,y i32; table order windows, pixel_counts, background, gain, reference_slopes; \
 commit crc32/iso-hdlc over the header's postcard encoding then all table bytes in that order \
 (the configuration's digest); a constant background fills the device's background map; \
-pixels u16 LE raster order";
+pixels u16 LE raster order of the configured camera, which a crop places on its sensor";
 
 /// A hash of the protocol's schema: the postcard-schema of
 /// `(HostMessage, DeviceMessage)` (every type, field and variant, by name and
@@ -259,6 +261,10 @@ pub struct ConfigHeader {
     /// Which optional tables follow.
     pub gain: bool,
     pub reference_slopes: bool,
+    /// Where `camera` lies on a larger sensor: the rectangle a board of a
+    /// rig captures (its camera interface crops it; pixels, windows and
+    /// maps are the rectangle's). `None`: the camera is the whole sensor.
+    pub crop: Option<Crop>,
 }
 
 /// The background of a [`ConfigHeader`]. `None` and `Map` encode as the
@@ -532,6 +538,25 @@ pub enum DeviceError {
     Frame { frame: u32, fault: FrameFault },
     /// `Capture` on a device without a camera, or the camera refused.
     NoCamera,
+    /// At `ConfigBegin`: the device's camera interface cannot crop the
+    /// header's rectangle. The upload is not started.
+    Crop(CropFault),
+}
+
+/// Why a device's camera interface cannot capture a crop rectangle (the
+/// STM32H743's DCMI: RM0433 "DCMI crop feature"; a simulated camera: whole
+/// 32-bit words of its bus).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub enum CropFault {
+    /// The rectangle's width must be a multiple of `multiple` pixels (the
+    /// DCMI counts the width in pixel clocks, one a pixel, and captures
+    /// whole 32-bit words of every line).
+    Width { width: u16, multiple: u16 },
+    /// The rectangle's pixel count must be a multiple of `multiple`: a
+    /// frame is whole words of the bus (and, on the DCMI, whole DMA bursts).
+    FramePixels { pixels: u32, multiple: u16 },
+    /// The interface takes sensors of at most `max` pixels a side.
+    SensorSize { width: u16, height: u16, max: u16 },
 }
 
 /// [`ConfigError`] on the wire: the same variants with `u32` instead of
@@ -600,6 +625,14 @@ pub enum ConfigFault {
         what: MemoryKind,
     },
     PixelCountZeroAll,
+    CropOutsideSensor {
+        x: u16,
+        y: u16,
+        width: u16,
+        height: u16,
+        sensor_width: u16,
+        sensor_height: u16,
+    },
 }
 
 fn narrow(v: usize) -> u32 {
@@ -671,6 +704,21 @@ impl From<ConfigError> for ConfigFault {
                 what,
             },
             E::PixelCountZeroAll => F::PixelCountZeroAll,
+            E::CropOutsideSensor {
+                x,
+                y,
+                width,
+                height,
+                sensor_width,
+                sensor_height,
+            } => F::CropOutsideSensor {
+                x,
+                y,
+                width,
+                height,
+                sensor_width,
+                sensor_height,
+            },
         }
     }
 }
@@ -735,6 +783,21 @@ impl From<ConfigFault> for ConfigError {
                 what,
             },
             F::PixelCountZeroAll => E::PixelCountZeroAll,
+            F::CropOutsideSensor {
+                x,
+                y,
+                width,
+                height,
+                sensor_width,
+                sensor_height,
+            } => E::CropOutsideSensor {
+                x,
+                y,
+                width,
+                height,
+                sensor_width,
+                sensor_height,
+            },
         }
     }
 }
@@ -848,6 +911,26 @@ impl fmt::Display for VersionMismatch {
 impl core::error::Error for VersionMismatch {}
 impl core::error::Error for DeviceError {}
 impl core::error::Error for ConfigFault {}
+impl core::error::Error for CropFault {}
+
+impl fmt::Display for CropFault {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            CropFault::Width { width, multiple } => write!(
+                f,
+                "its width, {width} pixels, is not a multiple of {multiple}"
+            ),
+            CropFault::FramePixels { pixels, multiple } => write!(
+                f,
+                "its {pixels} pixels are not a multiple of {multiple} (whole words of the camera bus)"
+            ),
+            CropFault::SensorSize { width, height, max } => write!(
+                f,
+                "the {width}x{height} sensor is larger than the interface takes ({max} per side)"
+            ),
+        }
+    }
+}
 
 impl fmt::Display for ResetReason {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -971,6 +1054,10 @@ impl fmt::Display for DeviceError {
             NotConfigured => write!(f, "the device has no active configuration"),
             Frame { frame, fault } => write!(f, "frame {frame} dropped: {fault}"),
             NoCamera => write!(f, "the device has no camera to capture from"),
+            Crop(fault) => write!(
+                f,
+                "the device's camera interface cannot crop this rectangle: {fault}"
+            ),
         }
     }
 }

@@ -58,11 +58,12 @@ impl ConfigHeader {
             },
             gain: config.calibration.gain.is_some(),
             reference_slopes: config.centroid.reference_slopes.is_some(),
+            crop: config.crop,
         }
     }
 
-    /// Longest postcard encoding of a header.
-    pub const MAX_ENCODED_LEN: usize = 64;
+    /// Longest postcard encoding of a header (about 60 bytes).
+    pub const MAX_ENCODED_LEN: usize = 80;
 
     /// The header's postcard encoding, the start of the configuration's
     /// digest (PROTOCOL.md §7).
@@ -425,6 +426,7 @@ impl ConfigHeader {
                 },
                 min_flux: self.min_flux,
             },
+            crop: self.crop,
         })
     }
 }

@@ -13,7 +13,7 @@ use super::tables::{
 };
 use super::*;
 use crate::config::{
-    Calibration, Centroid, Config, ConfigError, MapKind, MemoryKind, PixelCount, Selection,
+    Calibration, Centroid, Config, ConfigError, Crop, MapKind, MemoryKind, PixelCount, Selection,
     SubapertureWindow,
 };
 
@@ -52,6 +52,12 @@ fn header() -> ConfigHeader {
         background: Background::Constant(i32::MIN),
         gain: false,
         reference_slopes: true,
+        crop: Some(Crop {
+            x: u16::MAX,
+            y: u16::MAX,
+            sensor_width: u16::MAX,
+            sensor_height: u16::MAX,
+        }),
     }
 }
 
@@ -234,6 +240,14 @@ fn device_examples() -> Vec<DeviceMessage<'static>> {
             what: MemoryKind::OpenWindows,
         },
         ConfigError::NegativeMinFlux,
+        ConfigError::CropOutsideSensor {
+            x: u16::MAX,
+            y: u16::MAX,
+            width: u16::MAX,
+            height: u16::MAX,
+            sensor_width: u16::MAX,
+            sensor_height: u16::MAX,
+        },
     ];
     let faults = [
         FrameFault::PixelOutOfRange {
@@ -300,6 +314,10 @@ fn device_examples() -> Vec<DeviceMessage<'static>> {
         },
         DeviceError::NotConfigured,
         DeviceError::NoCamera,
+        DeviceError::Crop(CropFault::FramePixels {
+            pixels: u32::MAX,
+            multiple: u16::MAX,
+        }),
     ];
     errors.extend(config_errors.map(|e| DeviceError::Config(e.into())));
     errors.extend(faults.map(|fault| DeviceError::Frame { frame: 9, fault }));
@@ -660,6 +678,7 @@ fn uniform_background_travels_as_one_value() {
             min_flux: 0,
             reference_slopes: None,
         },
+        crop: None,
     };
     let uniform: &'static [i32] = std::vec![-48i32; 8].leak();
     let varied: &'static [i32] = varied.to_vec().leak();
@@ -694,7 +713,7 @@ fn schema_hash_is_pinned() {
     );
 }
 
-const PINNED_SCHEMA_HASH: u64 = 0x9c43_f658_a6ef_bab1;
+const PINNED_SCHEMA_HASH: u64 = 0xa34e_142e_2ad8_4ada;
 
 fn hash_of<T: Schema + ?Sized>() -> u64 {
     u64::from_le_bytes(hash_ty_path::<T>(WIRE_CONVENTIONS))
@@ -875,6 +894,7 @@ impl Owned {
                 reference_slopes: Some(&self.references),
                 min_flux: 12,
             },
+            crop: None,
         }
     }
 }

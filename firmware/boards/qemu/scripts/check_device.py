@@ -185,7 +185,9 @@ def msg_config_begin(upload_id, *, rule, n, mean_count=None, level_filter=None, 
               + (b"\x01" + zigzag(threshold) if threshold is not None else b"\x00")
               + zigzag(min_flux)
               # Background: 0 None, 1 Map (a table follows), 2 Constant(i32)
-              + bytes([background, gain, reference_slopes]))
+              + bytes([background, gain, reference_slopes])
+              + b"\x00")  # crop: None, the camera is the whole sensor
+
     return bytes([1]) + varint(upload_id) + header
 
 
@@ -218,7 +220,7 @@ ACKS = ["UploadStarted", "ChunkStored", "ConfigApplied", "UploadAborted", "Level
         "CaptureStarted", "CaptureStopped"]
 ERRORS = ["Decode", "Crc", "FrameTooLong", "HelloRequired", "Unexpected", "NoUpload",
           "UploadMismatch", "ChunkOutOfOrder", "ChunkLength", "ChunkPastEnd", "UploadIncomplete",
-          "UploadCrc", "Capacity", "Config", "NotConfigured", "Frame", "NoCamera"]
+          "UploadCrc", "Capacity", "Config", "NotConfigured", "Frame", "NoCamera", "Crop"]
 SOURCES = ["Link", "Stream", "Camera"]
 ERRATUM_FIXES = ["NotNeeded", "Applied", "Failed"]
 

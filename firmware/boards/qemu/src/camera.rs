@@ -8,7 +8,11 @@
 //! "The simulated camera"):
 //! 1. when a capture starts, the task writes one line to `DIR/requests`
 //!    (which it keeps open, each line after the last):
-//!    `capture ID WIDTH HEIGHT BIT_DEPTH` (ID counts captures from 1);
+//!    `capture ID WIDTH HEIGHT BIT_DEPTH` (ID counts captures from 1): the
+//!    whole sensor's geometry, which with a crop (a board of a rig) is
+//!    larger than the configured camera: the task keeps the rectangle of
+//!    every frame, as the STM32H743's DCMI crop does
+//!    (`brightpix_firmware::camera::SensorCrop`);
 //! 2. the host creates the FIFO `DIR/camera-ID.fifo` and writes frames of
 //!    that geometry into it, pixels as 16-bit little-endian, row after row
 //!    (a frame is `WIDTH * HEIGHT * 2` bytes), frame 0 first, for as long
@@ -26,7 +30,7 @@
 
 use core::fmt::Write as _;
 
-use brightpix_firmware::camera::{DataWidth, SimulatedCamera, SoftRing};
+use brightpix_firmware::camera::{DataWidth, SensorCrop, SimulatedCamera, SoftRing};
 use embassy_time::{Duration, Instant, Timer};
 use heapless::String;
 use semihosting::fs::{File, OpenOptions};
@@ -40,6 +44,8 @@ use crate::pixels::READ_CHUNK;
 pub const RING_WORDS: usize = 16 * 1024;
 /// Words (two pixels each) of one run the source hands the device.
 pub const RUN_WORDS: usize = 1024;
+/// The simulated camera's bus: 16 bits, two pixels a word.
+const BUS: DataWidth = DataWidth::Bits16;
 
 /// The ring. Its frame-end marks are not all zero, so it sits in `.data`.
 pub static RING: SoftRing<RING_WORDS> = SoftRing::new();
@@ -48,12 +54,7 @@ static RUN_PIXELS: ConstStaticCell<[u16; 2 * RUN_WORDS]> = ConstStaticCell::new(
 
 /// The device's pixel source over [`RING`]. Panics if called twice.
 pub fn source() -> SimulatedCamera<'static, 'static, RING_WORDS> {
-    SimulatedCamera::new(
-        &RING,
-        DataWidth::Bits16,
-        RUN_WORDS_BUF.take(),
-        RUN_PIXELS.take(),
-    )
+    SimulatedCamera::new(&RING, BUS, RUN_WORDS_BUF.take(), RUN_PIXELS.take())
 }
 
 /// How long the task waits for the host's FIFO of a capture.
@@ -66,7 +67,9 @@ const IDLE_POLL_MS: u64 = 1;
 pub async fn feed(dir: String<MAX_PATH>, fps: u32) {
     let period = Duration::from_micros(1_000_000 / u64::from(fps.max(1)));
     let mut bytes = [0u8; READ_CHUNK];
-    let mut words = [0u32; READ_CHUNK / 4];
+    let mut pixels = [0u16; READ_CHUNK / 2];
+    // One more than the chunk's: a word started in the previous chunk.
+    let mut words = [0u32; READ_CHUNK / 4 + 1];
     let mut last = 0;
     defmt::info!(
         "camera: simulated, frames from the host in {=str}, {=u32} frames/s",
@@ -84,7 +87,8 @@ pub async fn feed(dir: String<MAX_PATH>, fps: u32) {
             }
         };
         last = capture.id;
-        let camera = capture.camera;
+        let camera = capture.sensor();
+        let mut crop = SensorCrop::new(BUS, capture.camera, capture.crop);
         let frame_bytes = camera.pixel_count() * 2;
         if !request(&mut requests, capture.id, camera) {
             continue;
@@ -113,16 +117,18 @@ pub async fn feed(dir: String<MAX_PATH>, fps: u32) {
                     );
                     break 'frames;
                 }
-                for (w, b) in words.iter_mut().zip(bytes[..n].chunks_exact(4)) {
-                    *w = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+                for (p, b) in pixels.iter_mut().zip(bytes[..n].chunks_exact(2)) {
+                    *p = u16::from_le_bytes([b[0], b[1]]);
                 }
-                if !RING.write(capture.id, &words[..n / 4]) {
+                let kept = crop.keep_packed(&pixels[..n / 2], &mut words);
+                if !RING.write(capture.id, &words[..kept]) {
                     break 'frames;
                 }
                 left -= n;
                 // The device takes the piece before the next one comes.
                 embassy_futures::yield_now().await;
             }
+            crop.end_frame();
             if !RING.end_frame(capture.id) {
                 break;
             }

@@ -23,8 +23,8 @@
 
 use brightpix_firmware::camera::SimulatedCamera;
 use brightpix_firmware::device::{CameraRefused, LinkOnly, PixelRowsStream, PixelRun, PixelSource};
-use brightpix_protocol::wire::PixelSourceKind;
-use brightpix_protocol::Camera;
+use brightpix_protocol::wire::{CropFault, PixelSourceKind};
+use brightpix_protocol::{Camera, Crop};
 use embassy_time::Timer;
 use embedded_io_async::{ErrorKind, ErrorType, Read};
 
@@ -102,11 +102,19 @@ impl PixelSource for BoardSource {
         }
     }
 
-    fn start(&mut self, camera: Camera) -> Result<(), CameraRefused> {
+    fn check_crop(&self, camera: Camera, crop: Crop) -> Result<(), CropFault> {
         match self {
-            BoardSource::Link(s) => s.start(camera),
-            BoardSource::Stream(s) => s.start(camera),
-            BoardSource::Camera(s) => s.start(camera),
+            BoardSource::Link(s) => s.check_crop(camera, crop),
+            BoardSource::Stream(s) => s.check_crop(camera, crop),
+            BoardSource::Camera(s) => s.check_crop(camera, crop),
+        }
+    }
+
+    fn start(&mut self, camera: Camera, crop: Option<Crop>) -> Result<(), CameraRefused> {
+        match self {
+            BoardSource::Link(s) => s.start(camera, crop),
+            BoardSource::Stream(s) => s.start(camera, crop),
+            BoardSource::Camera(s) => s.start(camera, crop),
         }
     }
 

@@ -37,8 +37,13 @@
 //! - HSYNC, VSYNC: "line valid" / "frame valid", high while pixels are valid
 //!   (`HSPOL` = `VSPOL` = 0: synchronisation, i.e. blanking, is low).
 //! - Hardware synchronisation (no embedded codes), continuous grab
-//!   (`CM` = 0), no crop, no JPEG, every frame (`FCRC` = 0), all bytes.
-//! - Every frame `width * height` pixels of the configured camera, a whole
+//!   (`CM` = 0), no JPEG, every frame (`FCRC` = 0), all bytes.
+//! - Crop (`CROP` = 1, `DCMI_CWSTRT`, `DCMI_CWSIZE`) when the configuration
+//!   has one (a board of a rig: the camera's bus is fanned out to several
+//!   boards, each keeping its rectangle); its rules and register values are
+//!   `brightpix_firmware::camera::crop`'s, tested on the host.
+//! - Every frame `width * height` pixels of the configured camera (with a
+//!   crop: the sensor's, of which the rectangle is captured), a whole
 //!   number of 16-byte DMA bursts (4 words: 8 pixels in 10/12/14-bit mode,
 //!   16 in 8-bit mode); some vertical blanking between frames (the
 //!   frame-end interrupt reads the DMA position in it, once the DCMI and
@@ -66,7 +71,11 @@
 use core::sync::atomic::{AtomicU32, Ordering};
 use core::task::Waker;
 
-use brightpix_firmware::camera::{DataWidth, DmaProgress, DmaRing, FrameMarks, CACHE_LINE_BYTES};
+use brightpix_firmware::camera::{
+    dcmi_check, DataWidth, DcmiCropRegisters, DmaProgress, DmaRing, FrameMarks, CACHE_LINE_BYTES,
+};
+use brightpix_protocol::wire::CropFault;
+use brightpix_protocol::{Camera, Crop};
 use embassy_stm32::dcmi::{
     D0Pin, D10Pin, D11Pin, D12Pin, D13Pin, D1Pin, D2Pin, D3Pin, D4Pin, D5Pin, D6Pin, D7Pin, D8Pin,
     D9Pin, FrameDma, HSyncPin, PixClkPin, VSyncPin,
@@ -256,6 +265,8 @@ pub struct DcmiRing {
     len: usize,
     request: u8,
     width: DataWidth,
+    /// The crop the next `start` programs (`None`: the whole frame).
+    crop: Option<DcmiCropRegisters>,
     _pins: DcmiPins,
     _dcmi: Peri<'static, DCMI>,
     _dma: Peri<'static, DMA1_CH0>,
@@ -299,6 +310,7 @@ impl DcmiRing {
             len,
             request,
             width,
+            crop: None,
             _pins: pins,
             _dcmi: dcmi,
             _dma: dma,
@@ -379,9 +391,19 @@ impl DmaRing for DcmiRing {
         st.cr().modify(|w| w.set_en(true));
 
         let dcmi = pac::DCMI;
+        if let Some(crop) = self.crop {
+            dcmi.cwstrt().write(|w| {
+                w.set_hoffcnt(crop.hoffcnt);
+                w.set_vst(crop.vst);
+            });
+            dcmi.cwsize().write(|w| {
+                w.set_capcnt(crop.capcnt);
+                w.set_vline(crop.vline);
+            });
+        }
         dcmi.cr().write(|w| {
             w.set_cm(false); // continuous grab
-            w.set_crop(false);
+            w.set_crop(self.crop.is_some());
             w.set_jpeg(false);
             w.set_ess(false); // hardware HSYNC/VSYNC
             w.set_pckpol(true); // rising edge
@@ -460,6 +482,14 @@ impl DmaRing for DcmiRing {
 
     fn register_waker(&mut self, waker: &Waker) {
         WAKER.register(waker);
+    }
+
+    fn check_crop(&self, camera: Camera, crop: Crop) -> Result<(), CropFault> {
+        dcmi_check(self.width, camera, crop)
+    }
+
+    fn set_crop(&mut self, camera: Camera, crop: Option<Crop>) {
+        self.crop = crop.and_then(|c| DcmiCropRegisters::of(camera, c));
     }
 }
 

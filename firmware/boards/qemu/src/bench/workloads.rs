@@ -275,6 +275,7 @@ pub fn config<'a>(
             level_filter: w.level_filter,
         },
         centroid: Centroid::default(),
+        crop: None,
     }
 }
 
