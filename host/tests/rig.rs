@@ -13,7 +13,7 @@ use brightpix::io::write_array;
 use brightpix::link::Client;
 use brightpix::reference::Reference;
 use brightpix::rig::{self, BoardKind, CostModel, Rig, RigStartError};
-use brightpix::sim_device::InProcessDevice;
+use brightpix::sim_device::{CameraOptions, CameraSpec, InProcessDevice, InProcessOptions};
 use brightpix_protocol::{Camera, RegularGrid};
 
 /// A 12-bit 48x48 camera, 3x3 windows of 16x16, N = 6.
@@ -344,4 +344,107 @@ fn batches_go_on_without_a_board_that_disappeared() {
     assert_eq!(run.boards[0].counts.frames_done, 30);
     assert_eq!((run.frames_complete, run.frames_partial), (10, 20));
     check_present(&rig, &frames, &merged);
+}
+
+/// `rig capture`: three in-process boards, each with its own simulated
+/// camera of one seed (one camera's bus fanned out), each configured with
+/// its rectangle as its crop: their cameras make the whole 48x48 sensor
+/// and each keeps its band of rows. The merge equals the whole-camera
+/// reference bit for bit. A board whose pixels come from the host is
+/// refused before any work.
+#[test]
+fn capture_with_three_boards_each_cropping_one_camera() {
+    let dir = common::scratch("rig", "capture");
+    let config = dir.join("wfs.toml");
+    std::fs::write(
+        &config,
+        "[camera]\nwidth = 48\nheight = 48\nbit_depth = 12\n\
+         [subapertures.grid]\nx = 0\ny = 0\ncolumns = 3\nrows = 3\nwidth = 16\nheight = 16\n\
+         [selection]\npixels = 6\n",
+    )
+    .unwrap();
+    let rig_file = dir.join("rig.toml");
+    let (ok, text) = run(&[
+        "rig",
+        "plan",
+        "--config",
+        config.to_str().unwrap(),
+        "--boards",
+        "3",
+        "--out",
+        rig_file.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    let devices: Vec<InProcessDevice> = (0..3)
+        .map(|_| {
+            InProcessDevice::start(InProcessOptions {
+                camera: Some(CameraOptions {
+                    spec: CameraSpec { seed: 4 },
+                    fps: 100,
+                }),
+                ..InProcessOptions::default()
+            })
+            .unwrap()
+        })
+        .collect();
+    let ports: Vec<&str> = devices.iter().map(|d| d.port()).collect();
+    let ports = ports.join(",");
+    let out = dir.join("merged.npy");
+    let (ok, text) = run(&[
+        "rig",
+        "capture",
+        "--rig",
+        rig_file.to_str().unwrap(),
+        "--ports",
+        &ports,
+        "--count",
+        "30",
+        "--verify",
+        "--seed",
+        "4",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    assert!(
+        text.contains("30 complete")
+            && text.contains("verified: 30 merged frames, 270 sub-aperture results")
+            && text.contains(": 0 mismatches"),
+        "{text}"
+    );
+    assert!(out.exists());
+    // Another seed on the boards' camera than --verify's: every frame differs.
+    let (ok, text) = run(&[
+        "rig",
+        "capture",
+        "--rig",
+        rig_file.to_str().unwrap(),
+        "--ports",
+        &ports,
+        "--count",
+        "3",
+        "--verify",
+        "--seed",
+        "5",
+    ]);
+    assert!(!ok && text.contains("differ"), "{text}");
+    // A board without a camera of its own.
+    let plain = InProcessDevice::start_pty().unwrap();
+    let ports = format!(
+        "{},{},{}",
+        devices[0].port(),
+        devices[1].port(),
+        plain.port()
+    );
+    let (ok, text) = run(&[
+        "rig",
+        "capture",
+        "--rig",
+        rig_file.to_str().unwrap(),
+        "--ports",
+        &ports,
+        "--count",
+        "3",
+    ]);
+    assert!(!ok && text.contains("has no camera of its own"), "{text}");
 }

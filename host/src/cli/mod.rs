@@ -13,6 +13,7 @@ mod paper;
 mod process;
 mod progress;
 mod rig;
+mod rig_capture;
 mod simulate_device;
 mod soak;
 mod status;

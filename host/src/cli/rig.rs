@@ -49,6 +49,9 @@ enum RigCommand {
     Configure(CheckArgs),
     /// Stream recorded frames to the rig's boards and merge their results.
     Stream(StreamArgs),
+    /// Capture with every board's own camera (one camera's bus fanned out, each board cropping
+    /// its rectangle) and merge their results by frame number.
+    Capture(super::rig_capture::CaptureArgs),
 }
 
 #[derive(Args)]
@@ -75,13 +78,13 @@ struct PlanArgs {
 }
 
 #[derive(Args)]
-struct CheckArgs {
+pub(super) struct CheckArgs {
     /// The rig file (brightpix rig plan writes one).
     #[arg(long, value_name = "rig.toml")]
-    rig: PathBuf,
+    pub(super) rig: PathBuf,
     /// Ports of the boards, in the file's board order, instead of the file's `port`s.
     #[arg(long, value_name = "P1,P2,..", value_delimiter = ',')]
-    ports: Vec<String>,
+    pub(super) ports: Vec<String>,
 }
 
 #[derive(Args)]
@@ -137,6 +140,7 @@ pub fn run(args: RigArgs) -> Result<()> {
             Ok(())
         }
         RigCommand::Stream(a) => stream(a),
+        RigCommand::Capture(a) => super::rig_capture::run(a),
     }
 }
 
@@ -279,7 +283,7 @@ fn print_rig(rig: &Rig, loads: Option<&[rig::BoardLoad]>) {
 }
 
 /// One client per board: `--ports` in board order, else the file's ports.
-fn open_clients(rig: &Rig, ports: &[String]) -> Result<Vec<Client>> {
+pub(super) fn open_clients(rig: &Rig, ports: &[String]) -> Result<Vec<Client>> {
     if !ports.is_empty() && ports.len() != rig.boards.len() {
         bail!(
             "--ports gives {} ports for {} boards",
@@ -454,6 +458,14 @@ pub(super) fn run_and_report(
     }
     let run = stream.finish(&mut on_frame);
     progress.finish();
+    report(rig, &run, verify, show, rig.camera_rate_hz);
+    Ok(Outcome { results, run })
+}
+
+/// Per board its counts and measured frame rate (and whether it keeps up
+/// with a camera of `camera_rate` frames/s), the merge's totals and the
+/// verification's.
+pub(super) fn report(rig: &Rig, run: &RigRun, verify: bool, show: usize, camera_rate: Option<f64>) {
     for (board, r) in rig.boards.iter().zip(&run.boards) {
         println!(
             "  {}: {} sub-apertures, {} pixels a frame: {} frames done, {} dropped, {} missing{}{}",
@@ -464,7 +476,7 @@ pub(super) fn run_and_report(
             r.counts.frames_dropped,
             r.counts.frames_missing,
             if r.error.is_none() {
-                format!(", {:.0} frames/s", r.frames_per_second())
+                format!(", {:.1} frames/s", r.frames_per_second())
             } else {
                 String::new()
             },
@@ -472,6 +484,15 @@ pub(super) fn run_and_report(
                 .as_ref()
                 .map_or(String::new(), |e| format!("; stopped: {e}"))
         );
+        if let Some(rate) = camera_rate.filter(|&c| r.keeps_up_with(c) == Some(false)) {
+            println!(
+                "  warning: {} is slower than the camera: {:.1} frames/s measured against the camera's {rate:.1}; its {} sub-apertures are invalid in the {} frames it did not deliver",
+                board.name,
+                r.frames_per_second(),
+                board.windows.len(),
+                r.counts.frames_dropped + r.counts.frames_missing
+            );
+        }
     }
     println!(
         "  merged: {} frames by frame number, {} complete, {} with a board's results missing, in {:.3} s ({:.0} frames/s)",
@@ -490,7 +511,6 @@ pub(super) fn run_and_report(
             println!("    mismatch: {m}");
         }
     }
-    Ok(Outcome { results, run })
 }
 
 /// `view --rig`: the rig's boards fed `frames` over and over (as `rig

@@ -264,4 +264,35 @@ mod tests {
         assert!(m.add(0, done(&maps[0], 1)).is_empty());
         assert_eq!(m.counts[0].stray_outcomes, 1);
     }
+
+    /// A capture by a board slower than the camera: it skips the camera's
+    /// frame 1 (its outcomes are 0, 2, 3, 4: frame 4 was never awaited) and
+    /// its capture ends. Frame 1 waits for it until then, and is merged
+    /// with its sub-aperture missing and counted; frame 4 is stray.
+    #[test]
+    fn frames_a_slow_board_skipped_are_missing_once_its_capture_ends() {
+        let maps = maps();
+        let mut m = Merger::new(maps.clone(), 6);
+        (0..4).for_each(|f| m.expect(f));
+        let mut merged = Vec::new();
+        for f in 0..4 {
+            merged.extend(m.add(0, done(&maps[0], f)));
+            merged.extend(m.add(1, done(&maps[1], f)));
+        }
+        for f in [0, 2, 3, 4] {
+            merged.extend(m.add(2, done(&maps[2], f)));
+        }
+        assert_eq!(merged.len(), 1, "frame 1 waits for the slow board");
+        merged.extend(m.board_gone(2));
+        assert_eq!(
+            merged.iter().map(|f| f.frame).collect::<Vec<_>>(),
+            [0, 1, 2, 3]
+        );
+        assert_eq!(merged[1].missing_boards, [2]);
+        assert!(merged[1].results[5].is_none());
+        assert_eq!(merged[2].results[5].unwrap().slope_x, 205);
+        assert_eq!(m.counts[2].frames_missing, 1);
+        assert_eq!(m.counts[2].frames_done, 3);
+        assert_eq!(m.counts[2].stray_outcomes, 1);
+    }
 }

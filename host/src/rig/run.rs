@@ -71,12 +71,22 @@ pub struct BoardRun {
     /// Why it stopped early, if it did.
     pub error: Option<LinkError>,
     pub counts: BoardCounts,
+    /// The highest frame number it gave an outcome for.
+    pub last_frame: Option<u32>,
 }
 
 impl BoardRun {
-    /// Frames completed per second over its stream.
+    /// Frames completed per second over its stream: the board's measured
+    /// frame rate.
     pub fn frames_per_second(&self) -> f64 {
         self.report.frames_done as f64 / self.report.elapsed.as_secs_f64().max(1e-9)
+    }
+
+    /// Whether the board kept up with a camera of `camera_rate` frames per
+    /// second (within 5%, the timing of a run's first and last frames);
+    /// `None` when it completed no frame.
+    pub fn keeps_up_with(&self, camera_rate: f64) -> Option<bool> {
+        (self.report.frames_done > 0).then(|| self.frames_per_second() >= 0.95 * camera_rate)
     }
 }
 
@@ -111,6 +121,9 @@ pub struct RigStream<'r> {
     complete: u64,
     partial: u64,
     started: Instant,
+    /// Per board, the highest frame number it gave an outcome for (a
+    /// capture's camera frames run to it).
+    last_frames: Vec<Option<u32>>,
 }
 
 impl<'r> RigStream<'r> {
@@ -129,6 +142,7 @@ impl<'r> RigStream<'r> {
             complete: 0,
             partial: 0,
             started: Instant::now(),
+            last_frames: vec![None; rig.boards.len()],
         }
     }
 
@@ -183,7 +197,77 @@ impl<'r> RigStream<'r> {
                         self.merger.board_gone(b)
                     }
                 };
-                self.deliver(merged, Some((frames, first_frame)), on_frame);
+                let mut pixels = |f: u32| frames.get(f.wrapping_sub(first_frame) as usize).cloned();
+                self.deliver(merged, &mut pixels, on_frame);
+            }
+        });
+    }
+
+    /// Captures `count` frames with every board's own camera at once (one
+    /// client each, in board order): the boards share one camera's bus, so
+    /// frame `k` of every board's capture is the camera's frame `k` (each
+    /// capture starts at the camera's frame 0; simulated cameras of one
+    /// seed make the same frames). `camera_frame(k)` gives the whole
+    /// camera's frame `k` for verification. A board that falls behind the
+    /// camera skips frames: they wait for it until its capture ends, then
+    /// count as missing on its sub-apertures.
+    pub fn capture(
+        &mut self,
+        clients: &mut [Client],
+        count: u32,
+        camera_frame: &mut impl FnMut(u32) -> Option<Vec<u16>>,
+        on_frame: &mut impl FnMut(&MergedFrame),
+    ) {
+        for k in 0..count {
+            self.merger.expect(k);
+        }
+        std::thread::scope(|scope| {
+            let (tx, rx) = mpsc::channel();
+            for (b, client) in clients.iter_mut().enumerate() {
+                let tx = tx.clone();
+                scope.spawn(move || {
+                    let started = Instant::now();
+                    let result = client.capture_with(count, &mut |o| {
+                        let _ = tx.send(Event::Outcome(b, o.clone()));
+                    });
+                    let result = match result {
+                        Ok(outcomes) => {
+                            let done = outcomes
+                                .iter()
+                                .filter(|o| matches!(o, FrameOutcome::Done(_)))
+                                .count();
+                            Ok(StreamReport {
+                                frames_sent: count as usize,
+                                frames_done: done,
+                                frames_dropped: outcomes.len() - done,
+                                pixel_bytes: 0,
+                                elapsed: started.elapsed(),
+                            })
+                        }
+                        Err(interrupted) => Err(interrupted.error),
+                    };
+                    let _ = tx.send(Event::Ended(b, result));
+                });
+            }
+            drop(tx);
+            for event in rx {
+                let merged = match event {
+                    Event::Outcome(b, o) => {
+                        if let Some(last) = self.last_frames.get_mut(b) {
+                            *last = Some(last.map_or(o.frame(), |l: u32| l.max(o.frame())));
+                        }
+                        self.merger.add(b, o)
+                    }
+                    Event::Ended(b, result) => {
+                        match result {
+                            Ok(report) => self.reports[b] = report,
+                            Err(e) => self.errors[b] = Some(e),
+                        }
+                        // Its capture is over: frames it skipped wait no more.
+                        self.merger.board_gone(b)
+                    }
+                };
+                self.deliver(merged, camera_frame, on_frame);
             }
         });
     }
@@ -191,12 +275,11 @@ impl<'r> RigStream<'r> {
     fn deliver(
         &mut self,
         merged: Vec<MergedFrame>,
-        pixels: Option<(&[Vec<u16>], u32)>,
+        pixels: &mut dyn FnMut(u32) -> Option<Vec<u16>>,
         on_frame: &mut impl FnMut(&MergedFrame),
     ) {
         for m in merged {
-            let frame =
-                pixels.and_then(|(frames, first)| frames.get(m.frame.wrapping_sub(first) as usize));
+            let frame = pixels(m.frame);
             let outcome = m.as_outcome();
             if outcome.is_some() {
                 self.complete += 1;
@@ -206,14 +289,14 @@ impl<'r> RigStream<'r> {
             if let Some(v) = self.verifier.as_mut() {
                 match (frame, outcome) {
                     (Some(pixels), Some(outcome)) => {
-                        v.check(pixels, &outcome);
+                        v.check(&pixels, &outcome);
                     }
                     (Some(pixels), None) => {
                         let dropped = FrameOutcome::Incomplete(FrameSlopes {
                             frame: m.frame,
                             ..FrameSlopes::default()
                         });
-                        v.check(pixels, &dropped);
+                        v.check(&pixels, &dropped);
                     }
                     (None, _) => v.missing(),
                 }
@@ -226,16 +309,18 @@ impl<'r> RigStream<'r> {
     /// for a frame it was sent) merged with what arrived, and the totals.
     pub fn finish(mut self, on_frame: &mut impl FnMut(&MergedFrame)) -> RigRun {
         let rest = self.merger.finish();
-        self.deliver(rest, None, on_frame);
+        self.deliver(rest, &mut |_| None, on_frame);
         let boards = self
             .reports
             .into_iter()
             .zip(self.errors)
             .zip(&self.merger.counts)
-            .map(|((report, error), &counts)| BoardRun {
+            .zip(self.last_frames)
+            .map(|(((report, error), &counts), last_frame)| BoardRun {
                 report,
                 error,
                 counts,
+                last_frame,
             })
             .collect();
         RigRun {
@@ -261,4 +346,32 @@ pub fn stream(
     let mut run = RigStream::new(rig, verify);
     run.run(&mut clients, frames, first_frame, &mut on_frame);
     run.finish(&mut on_frame)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn board(frames_done: usize, seconds: f64) -> BoardRun {
+        BoardRun {
+            report: StreamReport {
+                frames_done,
+                elapsed: Duration::from_secs_f64(seconds),
+                ..StreamReport::default()
+            },
+            error: None,
+            counts: BoardCounts::default(),
+            last_frame: None,
+        }
+    }
+
+    /// A board's measured rate against the camera's: within 5% keeps up.
+    #[test]
+    fn a_board_slower_than_the_camera_is_told_apart() {
+        assert_eq!(board(100, 1.0).frames_per_second(), 100.0);
+        assert_eq!(board(100, 1.0).keeps_up_with(100.0), Some(true));
+        assert_eq!(board(96, 1.0).keeps_up_with(100.0), Some(true));
+        assert_eq!(board(80, 1.0).keeps_up_with(100.0), Some(false));
+        assert_eq!(board(0, 1.0).keeps_up_with(100.0), None);
+    }
 }
