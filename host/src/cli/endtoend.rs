@@ -2,6 +2,7 @@
 //! Strehl against N with the device's own slopes.
 
 use crate::config_file::ProcessingConfig;
+use crate::endtoend::least_squares::LeastSquares;
 use crate::endtoend::{
     parse_layers, parse_stars, report, EndToEnd, EndToEndResult, RunOptions, Scenario,
 };
@@ -122,7 +123,7 @@ rule and N its own measured slope noise) and fixed (--fixed-noise for all). Writ
 (summary, assumptions, error budget), NAME.svg/png (WFE), NAME-strehl.svg/png, NAME-budget.svg/png.\n\
 Defaults: the paper's CANARY (examples/canary-vignetted.toml: 36 sub-apertures of 16x16 at 0.22\",\n\
 640 nm, 200 photons, 2 e-, 250 Hz; r0 12.5 cm, 60/30/10% at 0/0.5/5 km) and what it leaves open.\n\n\
-Examples:\n  brightpix endtoend --out e2e\n  brightpix endtoend --out e2e --quick\n  brightpix endtoend --out e2e --outer-scale 10 --wind-scale 2 --name l0-10\n  brightpix endtoend --config my.toml --asterism '30,0;30,120;30,240' --photons 500 --read-noise 0.5 --out mine"
+Examples:\n  brightpix endtoend --out e2e\n  brightpix endtoend --out e2e --quick\n  brightpix endtoend --out e2e --outer-scale 10 --wind-scale 2 --name l0-10\n  brightpix endtoend --out e2e --least-squares tsvd:0.05 --name ls\n  brightpix endtoend --out e2e --model-layers 0:0.5,1000:0.4,8000:0.1 --emccd --noise-weights --name mismatch\n  brightpix endtoend --config my.toml --asterism '30,0;30,120;30,240' --photons 500 --read-noise 0.5 --out mine"
 )]
 pub struct EndToEndArgs {
     /// Output directory (created).
@@ -188,6 +189,62 @@ pub struct EndToEndArgs {
     /// A small smoke run (4 episodes of 20 frames, fewer N).
     #[arg(long)]
     quick: bool,
+    /// Replace the fixed reconstructor by plain least squares on the layer nodes (no prior):
+    /// tsvd:R (singular values of G below R x the largest discarded) or tikhonov:R (alpha = (R x
+    /// the largest singular value)^2). The matched MMSE reconstructor is kept beside it.
+    #[arg(long, value_name = "tsvd:R|tikhonov:R")]
+    least_squares: Option<String>,
+    /// Layer nodes per sub-aperture pitch of the least-squares reconstructor (1: at the lenslet
+    /// pitch, a virtual DM per layer; 2: the MMSE reconstructor's d/2 lattice).
+    #[arg(long, default_value_t = 1)]
+    least_squares_nodes: usize,
+    /// The profile the reconstructors assume: ALTITUDE:FRACTION,... (m, share, normalised).
+    /// Default: the atmosphere's own (perfectly known).
+    #[arg(long, value_name = "ALT:FRAC,...")]
+    model_layers: Option<String>,
+    /// EMCCD at high gain: multiplication noise doubles the photon noise's variance (excess
+    /// noise factor sqrt(2)); --read-noise is then the effective read noise.
+    #[arg(long)]
+    emccd: bool,
+    /// The matched reconstructor weights each sub-aperture by its own measured slope noise.
+    #[arg(long)]
+    noise_weights: bool,
+    /// Per-sub-aperture N: each sub-aperture selects max(1, round(N x its lit fraction)).
+    #[arg(long)]
+    pixels_by_light: bool,
+}
+
+/// Parses `ALT:FRACTION,...` into the reconstructor's profile, fractions
+/// normalised.
+pub fn parse_model_layers(text: &str) -> Result<Vec<(f64, f64)>> {
+    let mut v: Vec<(f64, f64)> = text
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            let (h, f) = s
+                .split_once(':')
+                .with_context(|| format!("{s:?}: expected ALTITUDE:FRACTION"))?;
+            let h: f64 = h
+                .trim()
+                .parse()
+                .with_context(|| format!("{s:?}: altitude"))?;
+            let f: f64 = f
+                .trim()
+                .parse()
+                .with_context(|| format!("{s:?}: fraction"))?;
+            if !(h.is_finite() && h >= 0.0 && f.is_finite() && f > 0.0) {
+                bail!("{s:?}: altitude >= 0 and fraction > 0");
+            }
+            Ok((h, f))
+        })
+        .collect::<Result<_>>()?;
+    if v.is_empty() {
+        bail!("no layer given");
+    }
+    let total: f64 = v.iter().map(|l| l.1).sum();
+    v.iter_mut().for_each(|l| l.1 /= total);
+    Ok(v)
 }
 
 /// Parses a rule list.
@@ -270,6 +327,7 @@ fn scenario(args: &EndToEndArgs) -> Result<Scenario> {
         spot_model,
         photons: args.photons,
         read_noise_e: args.read_noise,
+        em_excess_noise: args.emccd,
         gain_e_per_count: args.gain,
         background,
         ..SimulationParams::canary()
@@ -282,6 +340,21 @@ fn scenario(args: &EndToEndArgs) -> Result<Scenario> {
         ..Atmosphere::canary()
     };
     args.conditions.apply(&mut s)?;
+    s.least_squares = args
+        .least_squares
+        .as_deref()
+        .map(LeastSquares::parse)
+        .transpose()
+        .context("--least-squares")?;
+    s.model_layers = args
+        .model_layers
+        .as_deref()
+        .map(parse_model_layers)
+        .transpose()
+        .context("--model-layers")?;
+    s.least_squares_nodes = args.least_squares_nodes;
+    s.noise_weights = args.noise_weights;
+    s.pixels_by_light = args.pixels_by_light;
     Ok(s)
 }
 

@@ -68,9 +68,11 @@
 
 pub mod covariance;
 pub mod geometry;
+pub mod least_squares;
 pub mod reconstructor;
 pub mod report;
 mod results;
+mod run;
 mod scenario;
 
 pub use results::{
@@ -80,6 +82,8 @@ pub use scenario::{canary_config, parse_layers, parse_stars, GuideStar, Scenario
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod variant_tests;
 
 use anyhow::{anyhow, bail, Result};
 use nalgebra::DMatrix;
@@ -122,6 +126,9 @@ pub struct EndToEnd {
     pub dm: DeformableMirror,
     pub science: Science,
     pub tomography: Tomography,
+    /// The plain least-squares reconstructor's layer model, when the run
+    /// has one (`Scenario::least_squares`).
+    pub ls_tomography: Option<Tomography>,
     camera: CameraSimulator,
     screens: LayeredScreens,
     directions: Vec<[f64; 2]>,
@@ -260,28 +267,36 @@ impl EndToEnd {
             s.dm_coupling,
         )?;
         let science = Science::new(&dm, &grid);
-        let layers: Vec<(f64, f64)> = s
-            .atmosphere
-            .layers
-            .iter()
-            .map(|l| (l.altitude_m, l.fraction))
-            .collect();
-        let tomography = Tomography::new(
-            &ModelGeometry {
-                pupil: &pupil,
-                lenslets: &lenslets,
-                wfs_directions: &directions,
-                science_direction: science_dir,
-                layers: &layers,
-                r0_m: s.atmosphere.r0_m,
-                r0_wavelength_m: s.atmosphere.r0_wavelength_m,
-                outer_scale_m: s.atmosphere.outer_scale_m,
-                pixel_scale_arcsec: wfs.pixel_scale_arcsec,
-                dm: &dm,
-                science: &grid,
-            },
-            &science,
-        )?;
+        let layers = s.model_profile();
+        if layers.is_empty()
+            || layers
+                .iter()
+                .any(|&(h, f)| !(h.is_finite() && h >= 0.0 && f.is_finite() && f > 0.0))
+        {
+            bail!("the reconstructor's profile needs layers at altitudes >= 0 with positive fractions");
+        }
+        let model = |nodes_per_subaperture: usize| ModelGeometry {
+            pupil: &pupil,
+            lenslets: &lenslets,
+            wfs_directions: &directions,
+            science_direction: science_dir,
+            layers: &layers,
+            r0_m: s.atmosphere.r0_m,
+            r0_wavelength_m: s.atmosphere.r0_wavelength_m,
+            outer_scale_m: s.atmosphere.outer_scale_m,
+            pixel_scale_arcsec: wfs.pixel_scale_arcsec,
+            dm: &dm,
+            science: &grid,
+            nodes_per_subaperture,
+        };
+        let tomography = Tomography::new(&model(reconstructor::NODES_PER_SUBAPERTURE), &science)?;
+        // The least-squares reconstructor's own lattice: without a prior,
+        // nodes finer than the slopes can resolve are left to the minimum
+        // norm, so its pitch is a choice of its own.
+        let ls_tomography = match s.least_squares {
+            Some(_) => Some(Tomography::new(&model(s.least_squares_nodes), &science)?),
+            None => None,
+        };
         let window_pixels = first.width as usize * first.height as usize;
         let scenario = Scenario { wfs, ..scenario };
         Ok(EndToEnd {
@@ -292,6 +307,7 @@ impl EndToEnd {
             dm,
             science,
             tomography,
+            ls_tomography,
             camera,
             screens,
             directions,
@@ -321,12 +337,24 @@ impl EndToEnd {
 
     /// The engine configuration of every wavefront sensor for `method` and
     /// N: the scenario's configuration with the rule, N (at most the
-    /// window's pixels) and level filter set, and a threshold of 0 for a
+    /// window's pixels; with `pixels_by_light`, scaled per sub-aperture by
+    /// its lit fraction) and level filter set, and a threshold of 0 for a
     /// clipping method.
     pub fn engine_config(&self, method: Method, pixels: usize) -> ProcessingConfig {
         let mut config = self.scenario.config.clone();
         config.rule = method.rule;
-        config.pixels = PixelCounts::All(pixels.clamp(1, self.window_pixels) as u16);
+        let n = pixels.clamp(1, self.window_pixels);
+        config.pixels = if self.scenario.pixels_by_light && n < self.window_pixels {
+            PixelCounts::PerSubaperture(
+                self.lenslets
+                    .subapertures
+                    .iter()
+                    .map(|sub| ((n as f64 * sub.lit).round() as u16).max(1))
+                    .collect(),
+            )
+        } else {
+            PixelCounts::All(n as u16)
+        };
         config.level_filter = method
             .level_filter
             .map(|gain_shift| LevelFilter { gain_shift });
@@ -489,181 +517,4 @@ impl EndToEnd {
             })
             .collect()
     }
-
-    /// Runs the calibration and the scored episodes, calling
-    /// `progress(frames)` as frames are simulated and scored.
-    pub fn run(
-        &self,
-        options: &RunOptions,
-        progress: &(dyn Fn(usize) + Sync),
-    ) -> Result<EndToEndResult> {
-        if options.episodes < 2 {
-            bail!("at least 2 episodes are needed for a standard error");
-        }
-        if options.calibration_episodes == 0 {
-            bail!("at least 1 calibration episode is needed");
-        }
-        if options.methods.is_empty() || options.pixels.is_empty() {
-            bail!("no rule or no N to score");
-        }
-        let combos = self.combos(&options.methods, &options.pixels);
-        let f = self.frames_per_episode;
-        let half = f / 2;
-        let started = std::time::Instant::now();
-        let mut timing = Timing::default();
-        let account = |data: &EpisodeData, timing: &mut Timing| {
-            timing.screens += data.timing[0];
-            timing.wfs_frames += data.timing[1];
-            timing.science += data.timing[2];
-        };
-        let thread_time = |t: std::time::Instant| t.elapsed().as_secs_f64();
-
-        // Calibration: each combination's slope noise.
-        let mut noise_sums = vec![(0.0, 0usize); combos.len()];
-        for c in 0..options.calibration_episodes as u64 {
-            let episode = CALIBRATION_EPISODE + c;
-            let data = self.simulate_episode(options.seed, episode, episode * f as u64);
-            account(&data, &mut timing);
-            progress(half);
-            let scoring = std::time::Instant::now();
-            let sums: Vec<(f64, usize, f64)> = combos
-                .par_iter()
-                .map(|combo| {
-                    let t = std::time::Instant::now();
-                    let ints = self.engine_slopes(&data, combo.method, combo.pixels)?;
-                    let engine = thread_time(t);
-                    let s = self.slope_matrix(&ints, f);
-                    let d = s - &data.s_cog;
-                    Ok((d.norm_squared(), d.len(), engine))
-                })
-                .collect::<Result<_>>()?;
-            timing.scoring += scoring.elapsed().as_secs_f64();
-            for (acc, (sum, n, engine)) in noise_sums.iter_mut().zip(sums) {
-                acc.0 += sum;
-                acc.1 += n;
-                timing.engine_cpu += engine;
-            }
-            progress(f - half);
-        }
-        let fixed_sigma2 = self.scenario.fixed_noise_px.powi(2);
-        let m_fixed = self.tomography.reconstructor(fixed_sigma2);
-        let calibration: Vec<f64> = noise_sums.iter().map(|&(s, n)| s / n as f64).collect();
-        let m_matched: Vec<DMatrix<f64>> = calibration
-            .par_iter()
-            .map(|&s2| self.tomography.reconstructor(s2))
-            .collect();
-
-        let mut results: Vec<ComboResult> = combos
-            .iter()
-            .zip(&calibration)
-            .map(|(&combo, &s2)| ComboResult {
-                combo,
-                calibration_noise_px2: s2,
-                slope_noise_px2: Vec::new(),
-                matched: Terms::default(),
-                fixed: Terms::default(),
-                fixed_sigma2_px2: fixed_sigma2,
-            })
-            .collect();
-        let (mut fitting, mut temporal, mut uncorrected) = (Vec::new(), Vec::new(), Vec::new());
-        let k_sci = 2.0 * std::f64::consts::PI / self.scenario.science_wavelength_m;
-        for e in 0..options.episodes as u64 {
-            let data = self.simulate_episode(options.seed, e, e * f as u64);
-            account(&data, &mut timing);
-            progress(half);
-            let scoring = std::time::Instant::now();
-            let sci = &self.science;
-            let c_now = &sci.fit * &data.phi_now;
-            let c_later = &sci.fit * &data.phi_later;
-            let fit_res = &data.phi_later - &sci.h * &c_later;
-            fitting.push(fit_res.norm_squared() / fit_res.len() as f64);
-            temporal.push(q_norm(&sci.q, &(&c_later - &c_now)) / f as f64);
-            uncorrected.push(data.phi_later.norm_squared() / data.phi_later.len() as f64);
-            let per: Vec<(f64, [[f64; 6]; 2], [f64; 2])> = combos
-                .par_iter()
-                .zip(&m_matched)
-                .map(|(combo, mm)| {
-                    let t = std::time::Instant::now();
-                    let ints = self.engine_slopes(&data, combo.method, combo.pixels)?;
-                    let engine = thread_time(t);
-                    let t = std::time::Instant::now();
-                    let s = self.slope_matrix(&ints, f);
-                    let noise = &s - &data.s_cog;
-                    let slope_noise = noise.norm_squared() / noise.len() as f64;
-                    let terms =
-                        [mm, &m_fixed].map(|m| self.terms(m, &s, &noise, &data, &c_now, k_sci));
-                    Ok((slope_noise, terms, [engine, thread_time(t)]))
-                })
-                .collect::<Result<_>>()?;
-            timing.scoring += scoring.elapsed().as_secs_f64();
-            for (r, (slope_noise, terms, cpu)) in results.iter_mut().zip(per) {
-                timing.engine_cpu += cpu[0];
-                timing.reconstruction_cpu += cpu[1];
-                r.slope_noise_px2.push(slope_noise);
-                for (t, v) in [&mut r.matched, &mut r.fixed].into_iter().zip(terms) {
-                    t.total.push(v[0]);
-                    t.strehl.push(v[1]);
-                    t.noise.push(v[2]);
-                    t.spot_bias.push(v[3]);
-                    t.aliasing.push(v[4]);
-                    t.tomography.push(v[5]);
-                }
-            }
-            progress(f - half);
-        }
-        Ok(EndToEndResult {
-            combos: results,
-            frames_per_episode: f,
-            fitting,
-            temporal,
-            uncorrected,
-            science_wavelength_m: self.scenario.science_wavelength_m,
-            timing: Timing {
-                total: started.elapsed().as_secs_f64(),
-                ..timing
-            },
-        })
-    }
-
-    /// One reconstructor's per-episode means: total variance, Strehl,
-    /// noise, spot bias, aliasing, tomography.
-    fn terms(
-        &self,
-        m: &DMatrix<f64>,
-        s: &DMatrix<f64>,
-        noise: &DMatrix<f64>,
-        data: &EpisodeData,
-        c_now: &DMatrix<f64>,
-        k_sci: f64,
-    ) -> [f64; 6] {
-        let sci = &self.science;
-        let f = data.frames as f64;
-        let c = m * s;
-        let residual = &data.phi_later - &sci.h * &c;
-        let np = residual.nrows() as f64;
-        let total = residual.norm_squared() / residual.len() as f64;
-        let strehl = residual
-            .column_iter()
-            .map(|col| {
-                let (mut re, mut im) = (0.0, 0.0);
-                for &r in col.iter() {
-                    let (sin, cos) = (k_sci * r).sin_cos();
-                    re += cos;
-                    im += sin;
-                }
-                (re * re + im * im) / (np * np)
-            })
-            .sum::<f64>()
-            / f;
-        let noise_term = q_norm(&sci.q, &(m * noise)) / f;
-        let bias = q_norm(&sci.q, &(m * (&data.s_cog - &data.s_gtilt))) / f;
-        let aliasing = q_norm(&sci.q, &(m * (&data.s_gtilt - &data.s_low))) / f;
-        let tomography = q_norm(&sci.q, &(c_now - m * &data.s_low)) / f;
-        [total, strehl, noise_term, bias, aliasing, tomography]
-    }
-}
-
-/// `sum_f x_f^T Q x_f` over the columns of `x`.
-fn q_norm(q: &DMatrix<f64>, x: &DMatrix<f64>) -> f64 {
-    (q * x).component_mul(x).sum()
 }

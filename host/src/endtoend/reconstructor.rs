@@ -65,6 +65,9 @@ pub struct ModelGeometry<'a> {
     pub pixel_scale_arcsec: f64,
     pub dm: &'a DeformableMirror,
     pub science: &'a ScienceGrid,
+    /// Layer nodes per sub-aperture pitch, each axis
+    /// ([`NODES_PER_SUBAPERTURE`] for the MMSE reconstructor).
+    pub nodes_per_subaperture: usize,
 }
 
 /// One layer's node lattice.
@@ -91,7 +94,8 @@ fn cell(u: [f64; 2], p: f64, half: f64) -> ([i64; 2], [f64; 2]) {
     ([i[0] as i64, i[1] as i64], [a[0] - i[0], a[1] - i[1]])
 }
 
-/// Layer nodes per sub-aperture pitch (each axis).
+/// Layer nodes per sub-aperture pitch (each axis) of the MMSE
+/// reconstructor.
 pub const NODES_PER_SUBAPERTURE: usize = 2;
 
 /// The reconstructor's fixed part: everything but the noise level.
@@ -102,6 +106,9 @@ pub struct Tomography {
     gcgt: DMatrix<f64>,
     /// `F P C G^T`: actuators x slopes.
     b: DMatrix<f64>,
+    /// `F P`: actuators x nodes, the DM's fit of the layers' on-axis sum
+    /// (what the plain least-squares reconstructor needs without `C`).
+    pub(super) fp: DMatrix<f64>,
     pub nodes: usize,
 }
 
@@ -140,8 +147,11 @@ impl Science {
 impl Tomography {
     pub fn new(m: &ModelGeometry<'_>, science: &Science) -> Result<Tomography> {
         let d_sub = m.lenslets.pitch_m;
-        let p = d_sub / NODES_PER_SUBAPERTURE as f64;
-        let half = (m.lenslets.across * NODES_PER_SUBAPERTURE) as f64 / 2.0;
+        if m.nodes_per_subaperture == 0 {
+            return Err(anyhow!("at least one layer node per sub-aperture pitch"));
+        }
+        let p = d_sub / m.nodes_per_subaperture as f64;
+        let half = (m.lenslets.across * m.nodes_per_subaperture) as f64 / 2.0;
         let n_sub = m.lenslets.subapertures.len();
         let n_s = 2 * n_sub * m.wfs_directions.len();
         let px_per_rad = ARCSEC_PER_RAD / m.pixel_scale_arcsec;
@@ -297,11 +307,13 @@ impl Tomography {
         }
         let cgt = &c * g.transpose();
         let gcgt = &g * &cgt;
-        let b = &science.fit * (proj * cgt);
+        let fp = &science.fit * proj;
+        let b = &fp * cgt;
         Ok(Tomography {
             g,
             gcgt,
             b,
+            fp,
             nodes: nn,
         })
     }
@@ -314,11 +326,20 @@ impl Tomography {
     /// `M(sigma^2)`: DM commands (m) from slopes (px), for white slope
     /// noise of variance `sigma2_px2`.
     pub fn reconstructor(&self, sigma2_px2: f64) -> DMatrix<f64> {
+        self.reconstructor_weighted(&vec![sigma2_px2; self.slopes()])
+    }
+
+    /// `M` for independent slope noise of variance `sigma2_px2[i]` on
+    /// slope `i`: `F P C G^T (G C G^T + diag(sigma^2))^-1`. Partly lit
+    /// sub-apertures get fewer photons and are noisier; weighting them by
+    /// their own variance is the MMSE estimate for such noise.
+    pub fn reconstructor_weighted(&self, sigma2_px2: &[f64]) -> DMatrix<f64> {
+        assert_eq!(sigma2_px2.len(), self.slopes(), "one variance per slope");
         let mut a = self.gcgt.clone();
         // A floor keeps the system positive definite when sigma is 0.
         let floor = 1e-9 * a.trace() / a.nrows() as f64;
-        for k in 0..a.nrows() {
-            a[(k, k)] += sigma2_px2.max(floor);
+        for (k, &s2) in sigma2_px2.iter().enumerate() {
+            a[(k, k)] += s2.max(floor);
         }
         let chol = Cholesky::new(a).expect("G C G^T + sigma^2 I is positive definite");
         chol.solve(&self.b.transpose()).transpose()

@@ -44,7 +44,7 @@ pub fn csv(result: &EndToEndResult) -> String {
                 c.combo.method.label(),
                 c.combo.pixels,
                 c.combo.all_pixels,
-                r.name(),
+                result.label(r),
                 c.sigma2_px2(r).sqrt(),
                 estimate(&c.slope_noise_px2).value.sqrt(),
                 wfe.value,
@@ -109,7 +109,7 @@ pub fn plots(result: &EndToEndResult, stem: &Path, title: &str) -> Result<Vec<Pa
                     })
                     .unzip();
                 series.push(Series {
-                    label: format!("{} ({})", m.label(), r.name()),
+                    label: format!("{} ({})", m.label(), result.label(r)),
                     color: COLORS[k % COLORS.len()],
                     marker: markers[k % markers.len()],
                     dashed: r == Reconstruction::Fixed,
@@ -233,7 +233,7 @@ pub fn plots(result: &EndToEndResult, stem: &Path, title: &str) -> Result<Vec<Pa
                 stem.file_name().unwrap_or_default().to_string_lossy()
             )),
             &Plot {
-                title: format!("{title}: error budget, {} ({})", m.label(), r.name()),
+                title: format!("{title}: error budget, {} ({})", m.label(), result.label(r)),
                 x_desc: "N, brightest pixels selected (ringed: all pixels)".into(),
                 y_desc: "nm rms".into(),
                 x_log: true,
@@ -264,9 +264,15 @@ pub fn summary(result: &EndToEndResult, assumptions: &[String], run_line: &str) 
         rms_nm(estimate(&result.fitting)).value,
         rms_nm(estimate(&result.temporal)).value
     );
+    if let Some((kept, total)) = result.modes_kept {
+        let _ = writeln!(
+            s,
+            "The least-squares reconstructor keeps {kept} of the {total} singular modes of G.\n"
+        );
+    }
     let nm = |v: &Vec<f64>| rms_nm(estimate(v)).value;
     for r in RECONSTRUCTIONS {
-        let _ = writeln!(s, "## Reconstructor: {}\n", r.name());
+        let _ = writeln!(s, "## Reconstructor: {}\n", result.label(r));
         let _ = writeln!(
             s,
             "| rule | N | WFE (nm) | Strehl at {lambda:.0} nm | Maréchal | slope noise (px) | noise | tomography | aliasing | spot bias (nm) |"

@@ -101,6 +101,12 @@ pub struct EndToEndResult {
     pub temporal: Vec<f64>,
     pub uncorrected: Vec<f64>,
     pub science_wavelength_m: f64,
+    /// The second reconstructor's name: `fixed` (MMSE, one assumed noise)
+    /// or the least-squares one's label.
+    pub fixed_label: String,
+    /// For a least-squares second reconstructor: the singular modes of `G`
+    /// kept (at or above the truncation) and their total.
+    pub modes_kept: Option<(usize, usize)>,
     pub timing: Timing,
 }
 
@@ -130,6 +136,14 @@ pub fn rms_nm(ms: Estimate) -> Estimate {
 }
 
 impl EndToEndResult {
+    /// The name of reconstructor `r` in this run's outputs.
+    pub fn label(&self, r: Reconstruction) -> &str {
+        match r {
+            Reconstruction::Matched => r.name(),
+            Reconstruction::Fixed => &self.fixed_label,
+        }
+    }
+
     pub fn find(&self, method: Method, pixels: usize) -> Option<&ComboResult> {
         self.combos
             .iter()

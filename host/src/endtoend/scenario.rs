@@ -4,6 +4,7 @@
 use anyhow::{bail, Context, Result};
 
 use super::geometry::{DeformableMirror, Lenslets};
+use super::least_squares::LeastSquares;
 use crate::config_file::ProcessingConfig;
 use crate::simulator::atmosphere::{Atmosphere, Layer};
 use crate::simulator::{SimulationParams, ARCSEC_PER_RAD};
@@ -74,6 +75,23 @@ pub struct Scenario {
     pub fixed_noise_px: f64,
     /// Spacing of the science grid (m).
     pub science_spacing_m: f64,
+    /// The profile the reconstructor assumes, `(altitude m, fraction)` per
+    /// layer (`None`: the atmosphere's own, perfectly known). A different
+    /// one is a profile mismatch, as on sky where the profile is measured.
+    pub model_layers: Option<Vec<(f64, f64)>>,
+    /// Replace the fixed MMSE reconstructor by plain least squares
+    /// (`None`: the fixed MMSE one with `fixed_noise_px`).
+    pub least_squares: Option<LeastSquares>,
+    /// Layer nodes per sub-aperture pitch of the least-squares
+    /// reconstructor (1: nodes at the lenslet pitch, a virtual DM per
+    /// layer; 2: the MMSE reconstructor's lattice).
+    pub least_squares_nodes: usize,
+    /// The matched reconstructor weights each sub-aperture by its own
+    /// measured slope noise (`false`: one variance for all).
+    pub noise_weights: bool,
+    /// Each sub-aperture selects `max(1, round(N x lit fraction))` pixels
+    /// (`false`: N for all): partly lit sub-apertures have fewer photons.
+    pub pixels_by_light: bool,
 }
 
 /// The CANARY wavefront sensor of the paper: `examples/canary-vignetted.toml`
@@ -109,7 +127,23 @@ impl Scenario {
             dm_coupling: 0.2,
             fixed_noise_px: 0.2,
             science_spacing_m: 0.075,
+            model_layers: None,
+            least_squares: None,
+            least_squares_nodes: 1,
+            noise_weights: false,
+            pixels_by_light: false,
         }
+    }
+
+    /// The reconstructor's profile: `model_layers`, or the atmosphere's.
+    pub fn model_profile(&self) -> Vec<(f64, f64)> {
+        self.model_layers.clone().unwrap_or_else(|| {
+            self.atmosphere
+                .layers
+                .iter()
+                .map(|l| (l.altitude_m, l.fraction))
+                .collect()
+        })
     }
 
     /// What the run assumes, one line each.
@@ -172,8 +206,50 @@ impl Scenario {
                 100.0 * dm.coupling
             ),
             format!(
-                "reconstructor: least squares on layer phases (bilinear nodes of pitch d/2 at the true altitudes), regularised by the layers' von Kármán covariance and white slope noise: matched (each rule and N its own measured noise) and fixed ({} px rms for all)",
-                self.fixed_noise_px
+                "reconstructor: least squares on layer phases (bilinear nodes of pitch d/2 at {}), regularised by the layers' von Kármán covariance and slope noise: matched (each rule and N its own measured noise, {}) and {}",
+                match &self.model_layers {
+                    None => "the true altitudes (the profile known)".to_string(),
+                    Some(m) => format!(
+                        "a profile unlike the atmosphere's: (altitude m, fraction) {}",
+                        m.iter()
+                            .map(|(h, f)| format!("({h}, {f:.3})"))
+                            .collect::<Vec<_>>()
+                            .join(" ")
+                    ),
+                },
+                if self.noise_weights {
+                    "each sub-aperture weighted by its own measured noise"
+                } else {
+                    "one variance for every slope"
+                },
+                match self.least_squares {
+                    None => format!("fixed ({} px rms for all)", self.fixed_noise_px),
+                    Some(ls) => format!(
+                        "{}: plain least squares on nodes of pitch d/{} at the same altitudes, without the prior, {}",
+                        ls.label(),
+                        self.least_squares_nodes,
+                        match ls {
+                            LeastSquares::TruncatedSvd(r) =>
+                                format!("singular values of G below {r} of the largest discarded"),
+                            LeastSquares::Tikhonov(r) => format!(
+                                "Tikhonov alpha = ({r} x the largest singular value of G)^2"
+                            ),
+                        }
+                    ),
+                }
+            ),
+            format!(
+                "selection: {}; camera: {}",
+                if self.pixels_by_light {
+                    "per sub-aperture, N x its lit fraction (rounded, at least 1)"
+                } else {
+                    "the same N in every sub-aperture"
+                },
+                if p.em_excess_noise {
+                    "EMCCD at high gain (multiplication noise: photon-noise variance doubled, excess noise factor sqrt(2))"
+                } else {
+                    "no multiplication noise (Poisson and read noise)"
+                }
             ),
             format!(
                 "science: at ({}\", {} deg), {} nm, residual on a {} m grid over the pupil, piston removed",

@@ -198,6 +198,7 @@ fn off_axis_star_directions_agree_between_atmosphere_and_reconstructor() {
                 pixel_scale_arcsec: e2e.scenario.wfs.pixel_scale_arcsec,
                 dm: &e2e.dm,
                 science: &e2e.grid,
+                nodes_per_subaperture: reconstructor::NODES_PER_SUBAPERTURE,
             },
             &e2e.science,
         )

@@ -109,7 +109,7 @@ use std::sync::Arc;
 
 use rand::rngs::ChaCha8Rng;
 use rand::SeedableRng;
-use rand_distr::{Distribution, Poisson, StandardNormal};
+use rand_distr::{Distribution, Gamma, Poisson, StandardNormal};
 use rayon::prelude::*;
 use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
@@ -626,6 +626,9 @@ impl Simulator {
                 } else {
                     0.0
                 };
+                if p.em_excess_noise {
+                    e = em_register(e, &mut rng);
+                }
                 if p.read_noise_e > 0.0 {
                     let n: f64 = StandardNormal.sample(&mut rng);
                     e += p.read_noise_e * n;
@@ -639,4 +642,15 @@ impl Simulator {
             .collect();
         (raw, saturated)
     }
+}
+
+/// An EMCCD's multiplication register at high gain, in photo-electron units
+/// (output charge over the gain): `n` electrons in, Gamma(`n`, 1) out (the
+/// sum of `n` exponential cascades), mean `n` and variance `n`, which
+/// doubles the variance of Poisson photo-electrons.
+pub fn em_register(n: f64, rng: &mut impl rand::Rng) -> f64 {
+    if n <= 0.0 {
+        return 0.0;
+    }
+    Gamma::new(n, 1.0).map_or(n, |g| g.sample(rng))
 }

@@ -52,6 +52,15 @@ pub struct SimulationParams {
     pub photons: f64,
     /// Gaussian read noise, rms electrons (2).
     pub read_noise_e: f64,
+    /// An EMCCD at high multiplication gain (`false`: none). The
+    /// multiplication register turns `n` photo-electrons into a
+    /// Gamma(`n`, gain)-distributed charge: divided by the gain, its mean is
+    /// `n` and its variance `n` again, so the photon noise's variance is
+    /// doubled (the excess noise factor sqrt(2) of the paper's §3.10
+    /// camera); `read_noise_e` is then the effective read noise after the
+    /// gain.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub em_excess_noise: bool,
     /// Background (counts) added to every pixel of the camera image before
     /// digitisation, without shot noise (50); calibration subtracts it
     /// ([`super::Simulator::calibration_background`]).
@@ -149,6 +158,7 @@ impl Default for SimulationParams {
             outer_scale_m: 30.0,
             photons: 200.0,
             read_noise_e: 2.0,
+            em_excess_noise: false,
             background: 50.0,
             background_error: 0.0,
             gain_e_per_count: 1.0,

@@ -577,3 +577,55 @@ fn camera_frames_place_every_window_and_are_reproducible() {
     )
     .is_err());
 }
+
+/// The EMCCD's multiplication noise doubles the photon noise's variance
+/// (excess noise factor sqrt(2)) and keeps its mean.
+#[test]
+fn em_register_doubles_the_photon_variance() {
+    let mut rng = stream_rng(7, 0, 9);
+    for &lambda in &[0.3, 5.0, 60.0] {
+        let poisson = Poisson::new(lambda).unwrap();
+        let n = 40_000;
+        let v: Vec<f64> = (0..n)
+            .map(|_| em_register(poisson.sample(&mut rng), &mut rng))
+            .collect();
+        let mean = v.iter().sum::<f64>() / n as f64;
+        let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n as f64 - 1.0);
+        assert!((mean / lambda - 1.0).abs() < 0.03, "{lambda}: mean {mean}");
+        assert!(
+            (var / (2.0 * lambda) - 1.0).abs() < 0.05,
+            "{lambda}: var {var}"
+        );
+    }
+    assert_eq!(em_register(0.0, &mut rng), 0.0);
+}
+
+/// Through the camera: a sub-aperture's total signal has twice the photon
+/// variance with the EMCCD, the read noise's unchanged.
+#[test]
+fn emccd_camera_has_twice_the_photon_noise() {
+    let p = no_turbulence(SimulationParams {
+        photons: 400.0,
+        read_noise_e: 0.5,
+        em_excess_noise: true,
+        ..SimulationParams::default()
+    });
+    let sim = Simulator::new(p.clone()).unwrap();
+    let sums: Vec<f64> = (0..1500)
+        .map(|f| {
+            sim.subaperture_frame(f, 3)
+                .raw
+                .iter()
+                .map(|&v| v as f64 - sim.calibration_background())
+                .sum()
+        })
+        .collect();
+    let n = sums.len() as f64;
+    let mean = sums.iter().sum::<f64>() / n;
+    let var = sums.iter().map(|s| (s - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    let npix = 256.0;
+    let expect = 2.0 * p.photons + npix * (p.read_noise_e.powi(2) + 1.0 / 12.0);
+    assert!((mean / p.photons - 1.0).abs() < 0.02, "mean {mean}");
+    // The variance's own relative error is sqrt(2/1500) = 3.7%.
+    assert!((var / expect - 1.0).abs() < 0.15, "var {var} vs {expect}");
+}

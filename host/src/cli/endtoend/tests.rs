@@ -86,6 +86,10 @@ fn bad_arguments_fail_before_any_work() {
         (vec!["--asterism", "40"], "RADIUS,ANGLE"),
         (vec!["--delay=-1"], "delay"),
         (vec!["--episode-frames", "100000"], "shorter episodes"),
+        (vec!["--least-squares", "svd:0.1"], "tsvd:R"),
+        (vec!["--least-squares", "tsvd:2"], "(0, 1)"),
+        (vec!["--model-layers", "0:-1"], "fraction > 0"),
+        (vec!["--model-layers", "500"], "ALTITUDE:FRACTION"),
     ] {
         let mut argv = vec!["brightpix", "endtoend", "--out", o];
         argv.extend(extra.iter().copied());
@@ -150,6 +154,53 @@ fn a_users_conditions_run_end_to_end_and_reproduce_from_the_seed() {
         for ext in ["svg", "png"] {
             assert!(out.join(format!("a{suffix}.{ext}")).is_file());
         }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_variants_run_and_say_what_they_assumed() {
+    let dir = temp("e2e-variants");
+    let out = dir.join("out");
+    run(&[
+        "brightpix",
+        "endtoend",
+        "--out",
+        out.to_str().unwrap(),
+        "--name",
+        "v",
+        "--least-squares",
+        "tikhonov:0.05",
+        "--model-layers",
+        "0:5,1000:3,7000:2",
+        "--emccd",
+        "--noise-weights",
+        "--pixels-by-light",
+        "--rules",
+        "subtract-next",
+        "--pixels",
+        "20",
+        "--episodes",
+        "2",
+        "--episode-frames",
+        "2",
+    ])
+    .unwrap();
+    let csv = std::fs::read_to_string(out.join("v.csv")).unwrap();
+    // N = 20 and all pixels, each with the matched MMSE and the
+    // least-squares reconstructor.
+    assert_eq!(csv.matches(",matched,").count(), 2, "{csv}");
+    assert_eq!(csv.matches(",ls-tikhonov:0.05,").count(), 2, "{csv}");
+    let summary = std::fs::read_to_string(out.join("v.md")).unwrap();
+    for said in [
+        "(1000, 0.300)",
+        "each sub-aperture weighted by its own measured noise",
+        "N x its lit fraction",
+        "EMCCD at high gain",
+        "Tikhonov alpha = (0.05",
+        "singular modes of G",
+    ] {
+        assert!(summary.contains(said), "{said}: {summary}");
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
