@@ -160,7 +160,7 @@ fn per_subaperture_n_follows_the_lit_fraction() {
     assert_eq!(n, expected);
     let fewer = n.iter().filter(|&&k| k < 20).count();
     assert!((1..36).contains(&fewer), "{n:?}");
-    assert!(n.iter().all(|&k| k <= 20 && k >= 1), "{n:?}");
+    assert!(n.iter().all(|k| (1..=20).contains(k)), "{n:?}");
     // All pixels stay all pixels.
     let all = e2e.engine_config(Method::SUBTRACT_NEXT, 256);
     assert_eq!(all.pixels, crate::config_file::PixelCounts::All(256));
