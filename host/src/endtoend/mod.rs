@@ -38,7 +38,10 @@
 //! its own slope-noise variance, measured on calibration episodes
 //! independent of the scored ones: what Learn & Apply does with on-sky
 //! covariances) and **fixed** (one `sigma` for every rule and N, the same
-//! matrix for all, like a reconstructor built once for the system).
+//! matrix for all, like a reconstructor built once for the system). With
+//! `Scenario::least_squares` the fixed one gives way to a plain
+//! least-squares tomography like the paper's ([`least_squares`]), scored on
+//! the same frames beside the matched MMSE one.
 //!
 //! ## Error budget
 //! The residual of a frame is split exactly, by linearity, into
