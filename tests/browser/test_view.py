@@ -120,7 +120,16 @@ def test_live_view_of_a_simulated_device(tmp_path: Path, browser_page: Page) -> 
     page = browser_page
     config = canary_12bit(tmp_path)
     view, url = start(
-        "view", "--simulate", "--config", config, "--drop-every", 20, "--rate", 100, "--port", 0
+        "view",
+        "--simulate",
+        "--config",
+        config,
+        "--drop-every",
+        20,
+        "--rate",
+        100,
+        "--http-port",
+        0,
     )
     try:
         assert url.startswith("http://127.0.0.1:"), url
@@ -175,7 +184,7 @@ def test_the_view_says_when_the_device_disappears_and_reconnects(
     try:
         assert port == f"unix:{sock}"
         view, url = start(
-            "view", "--device", port, "--config", REPO / "examples" / "canary.toml", "--port", 0
+            "view", "--port", port, "--config", REPO / "examples" / "canary.toml", "--http-port", 0
         )
         page.goto(url)
         first = wait_for(page, "Number(c.updates) >= 2", STARTUP_MS)
@@ -208,7 +217,7 @@ def test_bad_addresses_and_recordings_are_refused(tmp_path: Path) -> None:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        busy = run("view", "--simulate", "--port", port)
+        busy = run("view", "--simulate", "--http-port", port)
     assert busy.returncode != 0
     assert f"port {port} on 127.0.0.1 is in use" in busy.stderr, busy.stderr
 
@@ -244,7 +253,7 @@ def test_a_replay_shows_valid_and_invalid_sub_apertures(tmp_path: Path, browser_
     assert made.returncode == 0, made.stderr
     view, url = start(
         "view", "--replay", recording, "--config", config,
-        "--frames", frames_path, "--rate", 50, "--port", 0,
+        "--frames", frames_path, "--rate", 50, "--http-port", 0,
     )  # fmt: skip
     try:
         page.goto(url)

@@ -26,17 +26,18 @@ never data frames. Another address than loopback needs --allow-remote. A device 
 reported on the page and here, and the view reconnects when it answers again."
 )]
 pub struct ViewArgs {
-    /// Port to serve the page on (0: any free one), on 127.0.0.1.
-    #[arg(long, default_value_t = address::DEFAULT_PORT)]
-    port: u16,
+    /// TCP port to serve the page on (0: any free one), on 127.0.0.1.
+    #[arg(long = "http-port", value_name = "N", default_value_t = address::DEFAULT_PORT)]
+    http_port: u16,
     /// Address to serve on instead (ADDR:PORT); not loopback only with --allow-remote.
-    #[arg(long, value_name = "ADDR:PORT", conflicts_with = "port")]
+    #[arg(long, value_name = "ADDR:PORT", conflicts_with = "http_port")]
     listen: Option<String>,
     /// Serve on a non-loopback address: anyone who reaches this machine can watch.
     #[arg(long)]
     allow_remote: bool,
-    /// A device with its own camera on this serial port (/dev/ttyACM0, /dev/pts/N, unix:PATH).
-    #[arg(long, value_name = "PORT", conflicts_with_all = ["simulate", "replay", "rig"])]
+    /// A device with its own camera on this serial port (/dev/ttyACM0, /dev/pts/N, unix:PATH),
+    /// as `--port` of the other commands.
+    #[arg(long = "port", value_name = "PORT", conflicts_with_all = ["simulate", "replay", "rig"])]
     device: Option<String>,
     /// A rig file (brightpix rig plan): its boards fed --frames over and over, merged.
     #[arg(long, value_name = "rig.toml", conflicts_with_all = ["simulate", "replay", "config"], requires = "frames")]
@@ -71,7 +72,7 @@ pub struct ViewArgs {
     /// The configuration (default for --simulate: examples/canary.toml's CANARY model).
     #[arg(long, value_name = "C.toml")]
     config: Option<PathBuf>,
-    /// With --device: do not upload --config; check that the device runs it.
+    /// With --port: do not upload --config; check that the device runs it.
     #[arg(long, requires = "device")]
     no_configure: bool,
     /// Frames per second of --simulate (fed by the host) or --replay; the camera's for --camera.
@@ -89,11 +90,11 @@ pub struct ViewArgs {
 pub fn run(args: ViewArgs) -> Result<()> {
     let addr = match &args.listen {
         Some(text) => address::parse(text)?,
-        None => address::parse(&args.port.to_string())?,
+        None => address::parse(&args.http_port.to_string())?,
     };
     if args.device.is_none() && !args.simulate && args.replay.is_none() && args.rig.is_none() {
         bail!(
-            "say what to view: --device PORT, --rig FILE, --simulate or --replay PATH (see --help)"
+            "say what to view: --port PORT, --rig FILE, --simulate or --replay PATH (see --help)"
         );
     }
     if args.frames.is_some() && args.replay.is_none() && args.rig.is_none() {
