@@ -372,6 +372,28 @@ fn device_messages() -> Vec<(&'static str, DeviceMessage<'static>)> {
                         fifo_not_drained: 0,
                     }),
                     idle_permille: Some(875),
+                    faults: Some(FaultLog { before_reset: None }),
+                },
+                ..Status::default()
+            }),
+        ),
+        (
+            "a board whose last reset was a HardFault (an undefined instruction: CFSR.UNDEFINSTR, HFSR.FORCED)",
+            DeviceMessage::Status(Status {
+                reset_reason: ResetReason::Software,
+                health: Health {
+                    faults: Some(FaultLog {
+                        before_reset: Some(Fault {
+                            kind: FaultKind::HardFault,
+                            pc: 0x0800_1234,
+                            lr: 0x0800_0f01,
+                            cfsr: 1 << 16,
+                            hfsr: 1 << 30,
+                            mmfar: 0xe000_edf8,
+                            bfar: 0xe000_edf8,
+                        }),
+                    }),
+                    ..Health::default()
                 },
                 ..Status::default()
             }),

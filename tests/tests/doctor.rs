@@ -10,8 +10,8 @@ use brightpix::cli::doctor::{diagnose, examine, Check, Verdict};
 use brightpix::link::{Client, DeviceInfo};
 use brightpix::sim_device::InProcessDevice;
 use brightpix_protocol::wire::{
-    CameraInterface, Clocks, ErratumFix, Health, PixelSourceKind, ResetReason, Silicon, StackUsage,
-    Status, UsbClockSync, PROTOCOL_VERSION, SCHEMA_HASH,
+    CameraInterface, Clocks, ErratumFix, Fault, FaultKind, FaultLog, Health, PixelSourceKind,
+    ResetReason, Silicon, StackUsage, Status, UsbClockSync, PROTOCOL_VERSION, SCHEMA_HASH,
 };
 
 fn board(name: &str) -> DeviceInfo {
@@ -70,6 +70,7 @@ fn healthy() -> Status {
                 fifo_not_drained: 0,
             }),
             idle_permille: Some(900),
+            faults: Some(FaultLog { before_reset: None }),
         },
         ..Status::default()
     }
@@ -89,7 +90,7 @@ fn a_healthy_board_is_all_ok() {
         &healthy(),
         Duration::from_millis(2),
     );
-    assert_eq!(lines.len(), 10);
+    assert_eq!(lines.len(), 11);
     for line in &lines {
         assert_eq!(line.verdict, Verdict::Ok, "{line}");
     }
@@ -148,6 +149,37 @@ fn each_bring_up_fault_is_named() {
     let mut s = healthy();
     s.crc_errors = 1;
     assert_eq!(verdict_of(&s, "counters").verdict, Verdict::Warn);
+
+    let mut s = healthy();
+    s.reset_reason = ResetReason::Software;
+    s.health.faults = Some(FaultLog {
+        before_reset: Some(Fault {
+            kind: FaultKind::HardFault,
+            pc: 0x0800_1234,
+            lr: 0x0800_0f01,
+            cfsr: (1 << 15) | (1 << 9),
+            hfsr: 1 << 30,
+            mmfar: 0,
+            bfar: 0x3000_0000,
+        }),
+    });
+    let l = verdict_of(&s, "last fault");
+    assert_eq!(l.verdict, Verdict::Fail, "{l}");
+    for part in [
+        "PC 0x08001234",
+        "BFAR 0x30000000",
+        "PRECISERR",
+        "FORCED",
+        "addr2line",
+    ] {
+        assert!(l.detail.contains(part), "{part}: {l}");
+    }
+    assert!(!l.detail.contains("MMFAR"), "not valid: {l}");
+
+    let mut s = healthy();
+    s.reset_reason = ResetReason::Watchdog;
+    let l = verdict_of(&s, "last fault");
+    assert!(l.detail.contains("lock-up"), "{l}");
 }
 
 /// On a real board a missing reading is a warning (old firmware), not

@@ -148,9 +148,43 @@ fn doctor_reads_the_stack_and_marks_the_rest(cpu: QemuCpu, board: &str) {
         assert_eq!(l.verdict, Verdict::NotRead, "{l}");
         assert!(l.detail.contains("hardware only"), "{l}");
     }
-    for name in ["link", "counters"] {
+    for name in ["link", "counters", "last fault"] {
         assert_eq!(line(name).verdict, Verdict::Ok, "{}", line(name));
     }
+}
+
+/// A deliberate HardFault (`selftest=fault-once`: an undefined instruction
+/// at boot unless the last reset was a recorded fault): the handler keeps
+/// the registers in no-init RAM and resets the board, which boots again,
+/// serves, and reports the fault in `Status.health.faults` and `doctor`.
+#[test]
+fn a_hard_fault_is_reported_after_the_reboot() {
+    use brightpix::cli::doctor::{diagnose, Verdict};
+    let mut device = QemuDevice::launch(QemuOptions {
+        elf: Some(elf_for(QemuCpu::M4)),
+        board_args: vec!["selftest=fault-once".into()],
+        ..QemuOptions::default()
+    })
+    .unwrap_or_else(|e| panic!("{e:#}"));
+    let mut client = connect(&device);
+    let status = client.status().unwrap();
+    let fault = status
+        .health
+        .faults
+        .expect("the QEMU board keeps a fault record")
+        .before_reset
+        .expect("the fault before the reboot");
+    // UDF: CFSR.UNDEFINSTR, escalated (HFSR.FORCED); the PC in the code.
+    assert_ne!(fault.cfsr & (1 << 16), 0, "{fault:x?}");
+    assert_ne!(fault.hfsr & (1 << 30), 0, "{fault:x?}");
+    assert!(fault.pc > 0 && fault.pc < 0x40_0000, "{fault:x?}");
+    let lines = diagnose(&mut client, Duration::ZERO).unwrap();
+    let l = lines.iter().find(|l| l.name == "last fault").unwrap();
+    assert_eq!(l.verdict, Verdict::Fail, "{l}");
+    assert!(l.detail.contains("UNDEFINSTR"), "{l}");
+    // And the rebooted board works.
+    run_case(&mut client, &edge_cases()[0]);
+    check_alive(&mut device);
 }
 
 #[test]

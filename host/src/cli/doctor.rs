@@ -8,7 +8,9 @@ use std::fmt;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Result};
-use brightpix_protocol::wire::{crs_sync_source_name, ErratumFix, Health, ResetReason, Status};
+use brightpix_protocol::wire::{
+    crs_sync_source_name, ErratumFix, Fault, FaultLog, Health, ResetReason, Status,
+};
 use clap::Args;
 
 use crate::link::{Client, DeviceInfo};
@@ -115,6 +117,7 @@ pub fn examine(info: &DeviceInfo, status: &Status, round_trip: Duration) -> Vec<
         stack,
         camera_interface,
         idle_permille,
+        faults,
     } = status.health;
     let mut lines = vec![check(
         "link",
@@ -280,6 +283,21 @@ pub fn examine(info: &DeviceInfo, status: &Status, round_trip: Duration) -> Vec<
         }
         r => check("last reset", Verdict::Ok, r.to_string()),
     });
+    lines.push(match faults {
+        None => missing("last fault"),
+        Some(FaultLog { before_reset: None }) => check(
+            "last fault",
+            Verdict::Ok,
+            if status.reset_reason == ResetReason::Watchdog {
+                "none recorded: a watchdog reset without a record is a hang, or a lock-up (a stack overflow into the guard faults while stacking the exception, before any handler runs)".into()
+            } else {
+                "none recorded before the last reset".into()
+            },
+        ),
+        Some(FaultLog {
+            before_reset: Some(f),
+        }) => check("last fault", Verdict::Fail, describe_fault(&f)),
+    });
     lines.push(match status.watchdog_ms {
         None => missing("watchdog"),
         Some(ms) => check(
@@ -307,6 +325,68 @@ pub fn examine(info: &DeviceInfo, status: &Status, round_trip: Duration) -> Vec<
         ),
     ));
     lines
+}
+
+/// Names of the set bits of CFSR (ARMv7-M ARM B3.2.15: MemManage, BusFault
+/// and UsageFault status) and HFSR (B3.2.16).
+const CFSR_BITS: [(u32, &str); 17] = [
+    (0, "IACCVIOL (instruction access violation)"),
+    (1, "DACCVIOL (data access violation)"),
+    (3, "MUNSTKERR"),
+    (4, "MSTKERR (stacking hit the MPU: stack overflow)"),
+    (5, "MLSPERR"),
+    (8, "IBUSERR (instruction bus error)"),
+    (9, "PRECISERR (precise data bus error)"),
+    (10, "IMPRECISERR (imprecise data bus error)"),
+    (11, "UNSTKERR"),
+    (12, "STKERR (stacking bus error: stack overflow)"),
+    (13, "LSPERR"),
+    (
+        16,
+        "UNDEFINSTR (undefined instruction: a panic ends in UDF)",
+    ),
+    (17, "INVSTATE"),
+    (18, "INVPC"),
+    (19, "NOCP (coprocessor/FPU disabled)"),
+    (24, "UNALIGNED"),
+    (25, "DIVBYZERO"),
+];
+
+/// The `last fault` line: the registers, their causes named, and what to
+/// do with the PC.
+pub fn describe_fault(f: &Fault) -> String {
+    let mut causes: Vec<&str> = CFSR_BITS
+        .iter()
+        .filter(|(bit, _)| f.cfsr & (1 << bit) != 0)
+        .map(|(_, name)| *name)
+        .collect();
+    if f.hfsr & (1 << 30) != 0 {
+        causes.push("FORCED (escalated to HardFault)");
+    }
+    if f.hfsr & (1 << 1) != 0 {
+        causes.push("VECTTBL (vector table read)");
+    }
+    let mut text = format!(
+        "{:?} before the last reset: PC {:#010x}, LR {:#010x}, CFSR {:#010x}, HFSR {:#010x}",
+        f.kind, f.pc, f.lr, f.cfsr, f.hfsr
+    );
+    // The address registers hold something only when CFSR says so.
+    if f.cfsr & (1 << 7) != 0 {
+        text.push_str(&format!(", MMFAR {:#010x}", f.mmfar));
+    }
+    if f.cfsr & (1 << 15) != 0 {
+        text.push_str(&format!(", BFAR {:#010x}", f.bfar));
+    }
+    text.push_str(&format!(
+        "; {}; find the function: addr2line -e <the flashed ELF> {:#x}",
+        if causes.is_empty() {
+            "no cause bit set".to_string()
+        } else {
+            causes.join(", ")
+        },
+        f.pc
+    ));
+    text
 }
 
 /// Asks the device for its status (twice, `window` apart, when it reports

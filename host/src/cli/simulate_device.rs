@@ -111,6 +111,7 @@ pub fn run(args: SimulateDeviceArgs) -> Result<()> {
                 CpuArg::M7 => QemuCpu::M7,
             },
             camera,
+            board_args: Vec::new(),
         })?;
         device.release_fifo_in_background(Duration::from_secs(3600));
         println!("{}", device.port());

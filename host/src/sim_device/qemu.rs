@@ -171,6 +171,9 @@ pub struct QemuOptions {
     pub cpu: QemuCpu,
     /// The board's own simulated camera (`capture`); not with `pixels_fifo`.
     pub camera: Option<CameraOptions>,
+    /// More semihosting arguments, for board checks (firmware/boards/qemu
+    /// `args.rs`: e.g. `selftest=fault-once`).
+    pub board_args: Vec<String>,
 }
 
 /// The firmware in `qemu-system-arm`. Stops (kills QEMU) when dropped, and
@@ -252,6 +255,7 @@ impl QemuDevice {
             }
             None => None,
         };
+        board_args.extend(options.board_args.iter().cloned());
         if board_args
             .iter()
             .any(|a| a.contains(|c: char| c.is_whitespace() || c == ','))

@@ -23,6 +23,49 @@ pub struct Health {
     /// Share of time the CPU slept (WFI) since the previous `Status`, in
     /// 1/1000.
     pub idle_permille: Option<u16>,
+    /// What ended the run before the last reset, as the fault handler
+    /// recorded it in memory that survives a reset (protocol 4).
+    pub faults: Option<FaultLog>,
+}
+
+/// The board's record of a fault across a reset.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct FaultLog {
+    /// The fault that reset the board before this run (`None`: the last
+    /// reset was not a fault this board records, e.g. power-on, the reset
+    /// pin, or a watchdog reset after a hang).
+    pub before_reset: Option<Fault>,
+}
+
+/// A fault, with the registers that say where and why (Cortex-M, ARMv7-M
+/// ARM B3.2: the stacked PC and LR, and the fault status and address
+/// registers as the handler found them).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct Fault {
+    pub kind: FaultKind,
+    /// The instruction that faulted (or was about to run, for an
+    /// imprecise bus fault).
+    pub pc: u32,
+    /// The link register at the fault: the caller, usually.
+    pub lr: u32,
+    /// Configurable Fault Status Register (0xE000ED28): MemManage (bits
+    /// 7:0), BusFault (15:8), UsageFault (31:16) causes.
+    pub cfsr: u32,
+    /// HardFault Status Register (0xE000ED2C): FORCED (bit 30) is a
+    /// configurable fault escalated, VECTTBL (bit 1) a vector read.
+    pub hfsr: u32,
+    /// MemManage fault address (0xE000ED34); valid if CFSR.MMARVALID (bit 7).
+    pub mmfar: u32,
+    /// Bus fault address (0xE000ED38); valid if CFSR.BFARVALID (bit 15).
+    pub bfar: u32,
+}
+
+/// What kind of fault a [`Fault`] was.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub enum FaultKind {
+    /// The HardFault handler ran (every configurable fault escalates to
+    /// it on these boards).
+    HardFault,
 }
 
 /// The chip, as its debug unit identifies it (STM32: DBGMCU_IDCODE).

@@ -64,8 +64,8 @@ pub use frame::{
     Received, WireError, CRC32, CRC_LEN,
 };
 pub use health::{
-    crs_sync_source_name, crs_sync_source_usb2, CameraInterface, Clocks, ErratumFix, Health,
-    Silicon, StackUsage, UsbClockSync, STM32H7_REV_Y,
+    crs_sync_source_name, crs_sync_source_usb2, CameraInterface, Clocks, ErratumFix, Fault,
+    FaultKind, FaultLog, Health, Silicon, StackUsage, UsbClockSync, STM32H7_REV_Y,
 };
 pub use tables::{PixelRowsPlan, UploadPlan};
 

@@ -185,6 +185,17 @@ fn device_examples() -> Vec<DeviceMessage<'static>> {
                     fifo_not_drained: u32::MAX,
                 }),
                 idle_permille: Some(u16::MAX),
+                faults: Some(FaultLog {
+                    before_reset: Some(Fault {
+                        kind: FaultKind::HardFault,
+                        pc: u32::MAX,
+                        lr: u32::MAX,
+                        cfsr: u32::MAX,
+                        hfsr: u32::MAX,
+                        mmfar: u32::MAX,
+                        bfar: u32::MAX,
+                    }),
+                }),
             },
             config_digest: Some(u32::MAX),
         }),
@@ -410,12 +421,12 @@ fn encoding_is_as_documented() {
     assert_eq!(
         enc_host(HostMessage::Hello {
             protocol: Hello {
-                version: 3,
+                version: 4,
                 schema: 300
             },
             session: 7
         }),
-        [0x01, 0x09, 0x03, 0xac, 0x02, 0x07, 0xd6, 0x0b, 0xa7, 0xa8, 0x00]
+        [0x01, 0x09, 0x04, 0xac, 0x02, 0x07, 0x6f, 0x33, 0x70, 0x35, 0x00]
     );
     assert_eq!(
         enc_device(DeviceMessage::FrameDone {
@@ -713,7 +724,7 @@ fn schema_hash_is_pinned() {
     );
 }
 
-const PINNED_SCHEMA_HASH: u64 = 0xa34e_142e_2ad8_4ada;
+const PINNED_SCHEMA_HASH: u64 = 0xc132_233f_7b63_282b;
 
 fn hash_of<T: Schema + ?Sized>() -> u64 {
     u64::from_le_bytes(hash_ty_path::<T>(WIRE_CONVENTIONS))

@@ -279,7 +279,7 @@ def decode_device(body):
 
 
 def decode_health(r):
-    """Status.health (PROTOCOL.md §5): six options; u8 is one byte, wider
+    """Status.health (PROTOCOL.md §5): seven options; u8 is one byte, wider
     integers are varints."""
     silicon = r.option(lambda: dict(device_id=r.varint(), revision_id=r.varint(),
                                     axi_sram_fix=r.varint()))
@@ -293,8 +293,11 @@ def decode_health(r):
                                    dma_transfer_errors=r.varint(), dma_fifo_errors=r.varint(),
                                    fifo_not_drained=r.varint()))
     idle = r.option(r.varint)
+    fault = lambda: dict(kind=["HardFault"][r.varint()], pc=r.varint(), lr=r.varint(),
+                         cfsr=r.varint(), hfsr=r.varint(), mmfar=r.varint(), bfar=r.varint())
+    faults = r.option(lambda: dict(before_reset=r.option(fault)))
     return dict(silicon=silicon, clocks=clocks, usb_clock=usb_clock, stack=stack,
-                camera_interface=camera, idle_permille=idle)
+                camera_interface=camera, idle_permille=idle, faults=faults)
 
 
 def schema_from_protocol_md():

@@ -11,6 +11,8 @@
 //! | `--digest PATH` | board check: read `PATH` and log its length and FNV-1a hash |
 //! | `selftest=echo` | board check: UART0 echo loop instead of the device (0x04 exits) |
 //! | `selftest=panic`, `selftest=udf` | board check: the panic / HardFault exits (101 / 102) |
+//! | `--reset-on-fault` | a HardFault resets the board (its record reported after the reboot) instead of exiting 102 |
+//! | `selftest=fault-once` | board check: a HardFault at boot (an undefined instruction) unless the last reset was a recorded fault; implies `--reset-on-fault`, so the board reboots and serves, reporting the fault |
 
 use heapless::String;
 
@@ -27,6 +29,7 @@ pub struct Options {
     pub camera_fps: Option<u32>,
     pub digest: Option<String<MAX_PATH>>,
     pub selftest: Option<Selftest>,
+    pub reset_on_fault: bool,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, defmt::Format)]
@@ -34,6 +37,7 @@ pub enum Selftest {
     Echo,
     Panic,
     Udf,
+    FaultOnce,
 }
 
 impl Options {
@@ -78,6 +82,11 @@ impl Options {
                 "selftest=echo" => options.selftest = Some(Selftest::Echo),
                 "selftest=panic" => options.selftest = Some(Selftest::Panic),
                 "selftest=udf" => options.selftest = Some(Selftest::Udf),
+                "selftest=fault-once" => {
+                    options.selftest = Some(Selftest::FaultOnce);
+                    options.reset_on_fault = true;
+                }
+                "--reset-on-fault" => options.reset_on_fault = true,
                 other => defmt::warn!("args: unknown argument {=str}, ignored", other),
             }
         }

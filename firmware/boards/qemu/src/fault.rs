@@ -3,6 +3,8 @@
 
 use core::sync::atomic::{AtomicBool, Ordering};
 
+use brightpix_board_common::fault;
+
 use cortex_m_rt::{exception, ExceptionFrame};
 use defmt_semihosting as _;
 use embassy_time::Instant;
@@ -25,6 +27,15 @@ pub fn exit(code: i32) -> ! {
 /// Set on the first panic or fault, so a fault while reporting does not recurse.
 static FAILING: AtomicBool = AtomicBool::new(false);
 
+/// A HardFault resets the board (as the STM32H743's does) instead of
+/// ending QEMU (`--reset-on-fault`, `selftest=fault-once`).
+static RESET_ON_FAULT: AtomicBool = AtomicBool::new(false);
+
+/// From the command line, at boot.
+pub fn reset_on_fault(on: bool) {
+    RESET_ON_FAULT.store(on, Ordering::Relaxed);
+}
+
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
     if !FAILING.swap(true, Ordering::Relaxed) {
@@ -37,12 +48,20 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
 // and QEMU would hang.
 #[exception]
 unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
+    // First, before anything that could fault again: the record the next
+    // boot reports (`Status.health.faults`).
+    fault::record(frame.pc(), frame.lr());
     if !FAILING.swap(true, Ordering::Relaxed) {
         defmt::error!(
             "HardFault: pc={=u32:#010x} lr={=u32:#010x}",
             frame.pc(),
             frame.lr()
         );
+    }
+    if RESET_ON_FAULT.load(Ordering::Relaxed) {
+        // QEMU resets the machine on SYSRESETREQ and keeps RAM, the
+        // record included.
+        cortex_m::peripheral::SCB::sys_reset()
     }
     exit(exit_code::HARD_FAULT)
 }

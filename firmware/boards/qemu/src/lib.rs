@@ -50,13 +50,14 @@ pub fn board_name() -> &'static str {
     }
 }
 
-/// What this board can read of its health (`Status.health`): only the
-/// stack. Silicon, clocks, USB clock trimming and a camera interface are
+/// What this board can read of its health (`Status.health`): the stack
+/// and the fault record. Silicon, clocks, USB clock trimming and a camera interface are
 /// the STM32H743's (`None` here: not read); QEMU's DWT cycle counter reads
 /// 0, so neither is the CPU's idle time.
 pub fn health() -> Health {
     Health {
         stack: Some(brightpix_board_common::stack::usage()),
+        faults: Some(brightpix_board_common::fault::log()),
         ..Health::default()
     }
 }

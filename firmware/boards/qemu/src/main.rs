@@ -15,7 +15,7 @@
 #![no_std]
 #![no_main]
 
-use brightpix_board_common::{executor, stack};
+use brightpix_board_common::{executor, fault, stack};
 use brightpix_board_qemu::args::{Options, Selftest};
 use brightpix_board_qemu::hostfs::{self, HostFile};
 use brightpix_board_qemu::pixels::{BoardSource, HostPixels};
@@ -35,6 +35,7 @@ const EOT: u8 = 0x04;
 
 #[entry]
 fn main() -> ! {
+    fault::take_at_boot();
     stack::paint();
     let mut cp = cortex_m::Peripherals::take().unwrap();
     stack::guard(&mut cp.MPU);
@@ -44,9 +45,21 @@ fn main() -> ! {
     if let Some(path) = &options.digest {
         digest(path);
     }
+    brightpix_board_qemu::fault::reset_on_fault(options.reset_on_fault);
+    if let Some(f) = fault::before_reset() {
+        defmt::warn!(
+            "reset by a HardFault: pc={=u32:#010x} lr={=u32:#010x} cfsr={=u32:#010x} hfsr={=u32:#010x}",
+            f.pc,
+            f.lr,
+            f.cfsr,
+            f.hfsr
+        );
+    }
     match options.selftest {
         Some(Selftest::Panic) => panic!("selftest"),
         Some(Selftest::Udf) => cortex_m::asm::udf(),
+        Some(Selftest::FaultOnce) if fault::before_reset().is_none() => cortex_m::asm::udf(),
+        Some(Selftest::FaultOnce) => {}
         Some(Selftest::Echo) => {
             let uart = Uart0::new().unwrap();
             executor::run(|spawner: Spawner| spawner.spawn(echo(uart).unwrap()))

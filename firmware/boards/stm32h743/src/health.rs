@@ -250,5 +250,6 @@ pub fn health() -> Health {
             fifo_not_drained,
         }),
         idle_permille: Some(idle_permille()),
+        faults: Some(brightpix_board_common::fault::log()),
     }
 }

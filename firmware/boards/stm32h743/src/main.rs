@@ -24,6 +24,7 @@
 #![no_main]
 
 mod dcmi;
+mod fault;
 mod health;
 mod storage;
 mod usb_link;
@@ -64,6 +65,8 @@ const BOARD: &str = "stm32h743-nucleo";
 
 #[entry]
 fn main() -> ! {
+    // The record a HardFault left before the reset (`Status.health.faults`).
+    brightpix_board_common::fault::take_at_boot();
     stack::paint();
     // Before anything reads the AXI SRAM (storage::take zeroes it).
     health::fix_axi_sram_erratum();
