@@ -3,10 +3,21 @@
 //! cortex-m-rt puts the stack at the top of RAM, growing down towards the
 //! end of `.bss`/`.uninit` (`_stack_end`), where the statics (the task pool,
 //! the RTT buffers, the engine's memory) live: an overflow would overwrite
-//! them silently. [`guard`] makes the lowest 32 bytes of the stack a
-//! no-access MPU region, so an overflow faults instead (a MemManage fault,
-//! escalated to HardFault; if the fault's own stacking hits the guard the
-//! core locks up, which a watchdog turns into a reset). [`paint`] fills the
+//! them silently. [`guard`] makes the lowest [`GUARD_BYTES`] of the stack a
+//! no-access MPU region, so an overflow faults instead. The guard must be
+//! larger than any function's stack frame (plus the exception frame): a
+//! function whose frame is larger could move the stack pointer past the
+//! guard and write the statics below without touching it. The largest
+//! frames of the STM32H743 build are 5,824 bytes (embassy's task spawn,
+//! which builds the device task's future on the stack), 2,856 (the device
+//! loop) and 1,000 (`scripts/board-memory` lists them from the ELF and
+//! fails if one reaches the guard), hence 8 KiB, the next MPU region size
+//! (a power of two, aligned to itself).
+//!
+//! An overflow into the guard faults while the core stacks the exception
+//! (the stack pointer is in the guard), so the core locks up and the
+//! watchdog resets it: faulted at once, nothing overwritten, but no fault
+//! record (`fault.rs` records every other fault). [`paint`] fills the
 //! unused stack with a pattern at boot; [`usage`] finds the deepest word
 //! that changed (the high-water mark, reported in `Status.health.stack`).
 //!
@@ -26,12 +37,20 @@ extern "C" {
 
 /// What unused stack holds after [`paint`].
 const PAINT: u32 = 0x5AC5_5AC5;
-/// The guard region: the smallest MPU region.
-const GUARD_BYTES: usize = 32;
+/// The guard region: larger than the largest stack frame plus an exception
+/// frame (module documentation); an MPU region size (a power of two).
+pub const GUARD_BYTES: usize = 8192;
+const _: () = assert!(GUARD_BYTES.is_power_of_two() && GUARD_BYTES >= 32);
 /// Left unpainted below the stack pointer of [`paint`]'s own frame.
 const PAINT_MARGIN: usize = 256;
 
 static GUARDED: AtomicBool = AtomicBool::new(false);
+
+/// The guard's size, kept in the ELF for `scripts/board-memory` (which
+/// checks it against the largest stack frame).
+#[no_mangle]
+#[used]
+pub static BRIGHTPIX_STACK_GUARD: u32 = GUARD_BYTES as u32;
 
 fn top() -> usize {
     core::ptr::addr_of!(_stack_start) as usize
@@ -58,9 +77,11 @@ pub fn paint() {
     }
 }
 
-/// Makes the lowest [`GUARD_BYTES`] of the stack (32-byte aligned, just
+/// Makes the lowest [`GUARD_BYTES`] of the stack (aligned to its size, just
 /// above `_stack_end`) inaccessible through the MPU. Call once, in `main`.
 pub fn guard(mpu: &mut cortex_m::peripheral::MPU) {
+    // Referenced, so the linker keeps the symbol.
+    core::hint::black_box(&BRIGHTPIX_STACK_GUARD);
     let base = bottom() - GUARD_BYTES;
     // SAFETY: region 0 (no other code uses the MPU); it covers only the
     // guard bytes, which no data lives in; the default map stays for the
@@ -71,8 +92,9 @@ pub fn guard(mpu: &mut cortex_m::peripheral::MPU) {
         mpu.rnr.write(0);
         mpu.rbar.write(base as u32);
         // RASR (ARMv7-M B3.5.9): XN (bit 28), AP = 0b000 no access
-        // (bits 26:24), SIZE = 4 (2^(4+1) = 32 bytes, bits 5:1), ENABLE.
-        mpu.rasr.write((1 << 28) | (4 << 1) | 1);
+        // (bits 26:24), SIZE (bits 5:1: 2^(SIZE+1) bytes), ENABLE.
+        let size = GUARD_BYTES.trailing_zeros() - 1;
+        mpu.rasr.write((1 << 28) | (size << 1) | 1);
         // MPU_CTRL: ENABLE, PRIVDEFENA (bit 2); HFNMIENA off.
         mpu.ctrl.write(0b101);
         cortex_m::asm::dsb();

@@ -64,6 +64,21 @@ pub const RING_WORDS: usize = 1920;
 /// Words per pixel run handed to the device loop.
 pub const RUN_WORDS: usize = 256;
 
+/// The capacities this build has, kept in the ELF for
+/// `scripts/board-memory` (the README's figures): sub-apertures, open
+/// windows, pool entries, ring words, camera pixels per map, results per
+/// row.
+#[no_mangle]
+#[used]
+pub static BRIGHTPIX_MEMORY_FIGURES: [u32; 6] = [
+    SUBAPERTURES as u32,
+    OPEN_WINDOWS as u32,
+    POOL_ENTRIES as u32,
+    RING_WORDS as u32,
+    CAMERA_PIXELS as u32,
+    RESULTS_PER_ROW as u32,
+];
+
 /// AXI SRAM: the DMA ring and the background maps.
 #[repr(C, align(32))]
 pub struct AxiSram {
@@ -153,6 +168,8 @@ static TAKEN: AtomicBool = AtomicBool::new(false);
 /// every field), the D2 SRAM clocks enabled first.
 pub fn take() -> (&'static mut AxiSram, &'static mut D2Sram, &'static mut Dtcm) {
     assert!(!TAKEN.swap(true, Ordering::AcqRel), "storage taken twice");
+    // Referenced, so the linker keeps the symbol.
+    core::hint::black_box(&BRIGHTPIX_MEMORY_FIGURES);
     embassy_stm32::pac::RCC.ahb2enr().modify(|w| {
         w.set_sram1en(true);
         w.set_sram2en(true);
