@@ -94,6 +94,9 @@ impl Client {
             }
         }
         let bytes = encode_pixel_rows(frame, pixels);
+        // Counted before the write: a write that stalls part-way still has
+        // bytes in flight.
+        self.pacing.sent(frame, bytes.len());
         self.send_pixels(&bytes)?;
         Ok(bytes.len())
     }
@@ -167,7 +170,15 @@ impl Client {
     /// Waits for the next frame to end (done or dropped).
     pub fn next_outcome(&mut self) -> Result<FrameOutcome, LinkError> {
         self.check_stream_errors()?;
-        self.wait("frame results", |c| c.finished.pop_front())
+        let timeout = self.results_timeout();
+        self.wait_within("frame results", timeout, |c| c.finished.pop_front())
+    }
+
+    /// The longest silence while waiting for results: the timeout, plus
+    /// the time the pixel bytes still in flight take at the link's
+    /// measured rate (`pacing`): a slow link is not a silent device.
+    fn results_timeout(&self) -> Duration {
+        self.options.timeout + self.pacing.allowance()
     }
 
     /// A frame that has ended, if any, without waiting.
@@ -258,6 +269,7 @@ impl Client {
         let mut report = StreamReport::default();
         let window = self.options.frames_in_flight.max(1);
         let mut in_flight: BTreeSet<u32> = BTreeSet::new();
+        self.pacing.restart();
         let mut deliver = |o: FrameOutcome, report: &mut StreamReport| {
             match &o {
                 FrameOutcome::Done(_) => report.frames_done += 1,
@@ -338,7 +350,8 @@ impl Client {
     /// Waits for the next frame among `frames` to end.
     fn next_outcome_of(&mut self, frames: &BTreeSet<u32>) -> Result<FrameOutcome, LinkError> {
         self.check_stream_errors()?;
-        self.wait("frame results", |c| c.take_outcome_of(frames))
+        let timeout = self.results_timeout();
+        self.wait_within("frame results", timeout, |c| c.take_outcome_of(frames))
     }
 
     /// `Capture { frames }` on a device with its own camera: records

@@ -41,6 +41,7 @@ mod device_info;
 mod errors;
 mod frames;
 pub mod limits;
+mod pacing;
 mod port;
 mod requests;
 mod sink;
@@ -109,6 +110,8 @@ pub struct Client {
     /// Results of frames not finished yet.
     open_frames: BTreeMap<u32, Vec<SlopeEntry>>,
     finished: VecDeque<FrameOutcome>,
+    /// Pixel bytes in flight and the rate the device consumes them.
+    pacing: pacing::Pacing,
     /// Unrequested errors that are not about a frame (e.g. `Crc` after a
     /// damaged frame from the host), oldest first.
     pub notices: Vec<DeviceError>,
@@ -204,6 +207,7 @@ impl Client {
             replies: VecDeque::new(),
             open_frames: BTreeMap::new(),
             finished: VecDeque::new(),
+            pacing: pacing::Pacing::default(),
             notices: Vec::new(),
             damaged_frames: 0,
             stale_outcomes: 0,

@@ -198,6 +198,7 @@ impl Client {
                 self.open_frames.entry(frame).or_default().extend(results)
             }
             Incoming::FrameDone { frame, count } => {
+                self.pacing.finished(frame);
                 let slopes = self.open_frames.remove(&frame).unwrap_or_default();
                 self.finished.push_back(FrameOutcome::Done(FrameSlopes {
                     frame,
@@ -206,6 +207,7 @@ impl Client {
                 }));
             }
             Incoming::FrameError { frame, fault } => {
+                self.pacing.finished(frame);
                 let slopes = self.open_frames.remove(&frame).unwrap_or_default();
                 self.finished.push_back(FrameOutcome::Dropped {
                     slopes: FrameSlopes {

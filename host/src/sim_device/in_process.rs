@@ -45,6 +45,9 @@ pub struct InProcessOptions {
     pub camera: Option<CameraOptions>,
     /// Reported in `HelloReply`.
     pub board: &'static str,
+    /// The pseudo-terminal's bytes reach the device at most this fast (a
+    /// slow serial link, for tests); `None`: as fast as they come.
+    pub link_bytes_per_second: Option<u32>,
 }
 
 impl Default for InProcessOptions {
@@ -55,6 +58,7 @@ impl Default for InProcessOptions {
             pixels_fifo: None,
             camera: None,
             board: "brightpix-sim (in-process)",
+            link_bytes_per_second: None,
         }
     }
 }
@@ -105,12 +109,24 @@ impl InProcessDevice {
                 }));
                 slave = Some(pty_slave);
                 let (inbox, stop) = (link_inbox.clone(), stop.clone());
+                // A slow link: a piece every 20 ms (what is not read yet
+                // waits in the pseudo-terminal, as behind a UART).
+                let (piece, pause) = match options.link_bytes_per_second {
+                    Some(rate) => (
+                        (rate as usize / 50).clamp(1, 4096),
+                        Duration::from_millis(20),
+                    ),
+                    None => (4096, Duration::ZERO),
+                };
                 threads.push(spawn("brightpix-sim-pty", move || {
                     let _ = reader.set_timeout(Duration::from_millis(100));
                     let mut buf = [0u8; 4096];
                     while !stop.load(Ordering::Relaxed) {
-                        match reader.read(&mut buf) {
-                            Ok(n) if n > 0 => inbox.push(&buf[..n]),
+                        match reader.read(&mut buf[..piece]) {
+                            Ok(n) if n > 0 => {
+                                inbox.push(&buf[..n]);
+                                thread::sleep(pause);
+                            }
                             Ok(_) => thread::sleep(Duration::from_millis(10)),
                             Err(e) if e.kind() == io::ErrorKind::TimedOut => {}
                             Err(_) => thread::sleep(Duration::from_millis(10)),
