@@ -448,3 +448,52 @@ fn capture_with_three_boards_each_cropping_one_camera() {
     ]);
     assert!(!ok && text.contains("has no camera of its own"), "{text}");
 }
+
+/// A board that never gives frame 5 (it was never sent it: a frame its
+/// camera skipped) while its later frames arrive: outcomes arrive out of
+/// step with frame numbers, and only alignment by number keeps frame 6's
+/// results out of frame 5. Frame 5 is merged without that board once it
+/// has finished, its sub-apertures missing and counted.
+#[test]
+fn a_board_that_skips_a_frame_is_aligned_by_number_not_arrival() {
+    let rig = rig_of(3);
+    let (_devices, mut clients) = devices(&rig);
+    rig::configure(&rig, &mut clients).unwrap();
+    let frames = frames(12);
+    let width = rig.whole.camera.width as usize;
+    let maps = rig.boards.iter().map(|b| b.windows.clone()).collect();
+    let mut merger = rig::Merger::new(maps, rig.whole.windows.len());
+    (0..12).for_each(|f| merger.expect(f));
+    let mut merged = Vec::new();
+    for (b, client) in clients.iter_mut().enumerate() {
+        let rect = rig.boards[b].rectangle;
+        // (first, end) of each run of frames sent.
+        let parts: &[(usize, usize)] = if b == 2 {
+            &[(0, 5), (6, 12)]
+        } else {
+            &[(0, 12)]
+        };
+        let mut outcomes = Vec::new();
+        for &(first, end) in parts {
+            let cropped = frames[first..end].iter().map(|f| rect.crop(f, width));
+            client
+                .stream_frames(first as u32, cropped, |o| outcomes.push(o))
+                .unwrap();
+        }
+        for o in outcomes {
+            merged.extend(merger.add(b, o));
+        }
+    }
+    merged.extend(merger.board_gone(2));
+    merged.extend(merger.finish());
+    assert_eq!(
+        merged.iter().map(|m| m.frame).collect::<Vec<_>>(),
+        (0..12).collect::<Vec<_>>()
+    );
+    assert_eq!(merged[5].missing_boards, [2]);
+    assert_eq!(
+        check_present(&rig, &frames, &merged),
+        12 * 9 - rig.boards[2].windows.len()
+    );
+    assert_eq!(merger.counts[2].frames_missing, 1);
+}
