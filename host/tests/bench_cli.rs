@@ -29,6 +29,8 @@ fn host_bench_writes_a_row_per_workload_with_agreeing_peers() {
         "--host-only",
         "--quick",
         "--rounds",
+        "2",
+        "--min-run-ms",
         "1",
         "--threads",
         "2",
@@ -42,6 +44,7 @@ fn host_bench_writes_a_row_per_workload_with_agreeing_peers() {
         String::from_utf8_lossy(&run.stderr)
     );
     assert!(stdout.contains("canary-subtract-next-n20"), "{stdout}");
+    assert!(stdout.contains("engine/baseline"), "{stdout}");
     let rows: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let rows = rows.as_array().unwrap();
@@ -60,8 +63,22 @@ fn host_bench_writes_a_row_per_workload_with_agreeing_peers() {
     for row in rows {
         assert_eq!(row["kind"], "host");
         assert_eq!(row["threads"], 2);
-        assert!(row["mpx_per_s"].as_f64().unwrap() > 0.0);
-        assert!(row["x_sort"].as_f64().unwrap() > 0.0);
+        for figure in ["mpx_per_s", "x_sort", "x_best_peer", "engine_over_baseline"] {
+            let stats = &row[figure];
+            let (min, median, max) = (
+                stats["min"].as_f64().unwrap(),
+                stats["median"].as_f64().unwrap(),
+                stats["max"].as_f64().unwrap(),
+            );
+            assert!(
+                0.0 < min && min <= median && median <= max,
+                "{figure}: {stats}"
+            );
+        }
+        assert_eq!(row["rounds"], 2);
+        // The no-selection baseline equals the engine with no selection.
+        assert_eq!(row["baseline"]["agrees"], true);
+        assert!(row["baseline"]["mpx_per_s"]["median"].as_f64().unwrap() > 0.0);
         let peers = row["peers"].as_array().unwrap();
         assert_eq!(peers.len(), 4);
         for peer in peers {

@@ -3,8 +3,12 @@
 //! exactly, on random configurations (every rule, maps, per-sub-aperture N,
 //! the level filter over several frames); DARC's method and the two
 //! quickselects within 2^-16 pixel of the engine's subtract-next-distinct on
-//! spot frames, for any N.
+//! spot frames, for any N; the no-selection baseline exactly equal to the
+//! engine with N at least every window's pixel count, on random
+//! configurations (maps, threshold, reference slopes, minimum flux, any
+//! window shapes).
 
+use brightpix::bench::baseline::NoSelectionPeer;
 use brightpix::bench::peers::{FloatPeer, Peer, PeerSlope, Selector, SortPeer};
 use brightpix::engine_runner::HostEngine;
 use brightpix_protocol::SelectionRule;
@@ -32,6 +36,24 @@ proptest! {
         let mut engine = HostEngine::new(config).unwrap();
         let want = engine.process(frames.iter().map(Vec::as_slice), usize::MAX).unwrap();
         let mut peer = SortPeer::new(&config);
+        let mut slopes = vec![PeerSlope::default(); config.windows.len()];
+        for (frame, want) in frames.iter().zip(&want) {
+            peer.process(frame, &mut slopes);
+            prop_assert_eq!(&peer.results, want);
+        }
+    }
+
+    #[test]
+    fn the_no_selection_baseline_is_the_engine_with_no_selection(
+        (mut case, frames, _chunks) in case(),
+        beyond in 0u16..3,
+    ) {
+        let largest = case.windows.iter().map(|w| w.pixel_count()).max().unwrap() as u16;
+        case.pixels = PixelCounts::All(largest + beyond);
+        let config = case.view();
+        let mut engine = HostEngine::new(config).unwrap();
+        let want = engine.process(frames.iter().map(Vec::as_slice), usize::MAX).unwrap();
+        let mut peer = NoSelectionPeer::new(&config);
         let mut slopes = vec![PeerSlope::default(); config.windows.len()];
         for (frame, want) in frames.iter().zip(&want) {
             peer.process(frame, &mut slopes);

@@ -26,8 +26,9 @@ brightpix bench --host-only --quick               # host table only, a short run
 brightpix bench --config my.toml --camera-rate 1000\n                                                    # my configuration on simulated spots: does a 1 kHz camera fit one board?\n  \
 brightpix bench --config my.toml --frames run.fits --mhz 400 --camera-size 240x240 --camera-rate 1500\n\n\
 QEMU counts instructions exactly (-icount); a board's pixel rate assumes one instruction per cycle at --mhz\n\
-(Cortex-M7 dual issue can do better, flash and memory wait states worse). Host figures are medians of\n\
-interleaved rounds; only ratios measured in the same run mean much on a busy machine.\n\
+(Cortex-M7 dual issue can do better, flash and memory wait states worse). Host figures are median [min-max]\n\
+over interleaved rounds of runs of at least --min-run-ms; only ratios measured in the same run mean much\n\
+on a busy machine. Ratios are taken round by round.\n\
 The QEMU part needs qemu-system-arm and the thumbv7em-none-eabihf target (scripts/setup installs both);\n\
 without them the host table is still printed."
 )]
@@ -66,10 +67,14 @@ pub struct BenchArgs {
     /// Host threads for the all-cores figure (default: all cores).
     #[arg(long, value_name = "N")]
     threads: Option<usize>,
-    /// Timed host rounds (median reported).
-    #[arg(long, default_value_t = 7, value_name = "N")]
-    rounds: usize,
-    /// A short host run (3 rounds, fewer frames): for a smoke test, not for figures.
+    /// Timed host rounds, after a warm-up round (min, median and max reported) [default: 20; 3 with --quick].
+    #[arg(long, value_name = "N")]
+    rounds: Option<usize>,
+    /// Shortest timed host run, milliseconds: each task repeats its work until one run lasts this long
+    /// [default: 100; 10 with --quick].
+    #[arg(long, value_name = "MS")]
+    min_run_ms: Option<f64>,
+    /// A short host run (3 rounds of 10 ms runs, fewer frames): for a smoke test, not for figures.
     #[arg(long)]
     quick: bool,
     /// Print every host peer's figures and the QEMU bench's own output.
@@ -113,10 +118,19 @@ pub fn run(args: BenchArgs) -> Result<()> {
     } else {
         args.cores.clone()
     };
+    let min_run_ms = args
+        .min_run_ms
+        .unwrap_or(if args.quick { 10.0 } else { 100.0 });
+    if !(min_run_ms.is_finite() && min_run_ms >= 0.0) {
+        bail!("--min-run-ms {min_run_ms} is not a duration in milliseconds");
+    }
     let options = HostOptions {
-        rounds: if args.quick { 3 } else { args.rounds.max(1) },
+        rounds: args
+            .rounds
+            .unwrap_or(if args.quick { 3 } else { 20 })
+            .max(1),
         threads: args.threads,
-        pixels_per_run: if args.quick { 1_000_000 } else { 4_000_000 },
+        min_run_seconds: min_run_ms * 1e-3,
     };
     let frame_pixels = if args.quick { 500_000 } else { 4_000_000 };
 
@@ -209,7 +223,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
     if !host_rows.is_empty() {
         let threads = host_rows[0].threads;
         println!(
-            "Host ({threads} threads; x sort, x peer: the per-window sort's and the best peer's time over the engine's, one core each)"
+            "Host ({threads} threads; x sort, x peer: the per-window sort's and the best peer's time over the engine's on the peer's own rule; \
+             engine/baseline: the engine's time over the no-selection baseline's; one core each; median [min-max] over the rounds)"
         );
         print!("{}", host_table(&host_rows));
         if args.verbose {
@@ -333,15 +348,15 @@ fn capacity_report(
     }
     if let Some(host) = host {
         out.push_str(&format!(
-            "  this host: {:.1} Mpx/s on {} threads ({:.1} on one core)",
-            host.mpx_per_s, host.threads, host.mpx_per_s_one_core
+            "  this host: {:.1} Mpx/s on {} threads ({:.1} on one core; medians)",
+            host.mpx_per_s.median, host.threads, host.mpx_per_s_one_core.median
         ));
         if let (Some(rate), Some((pixels, size))) = (args.camera_rate, camera) {
             let needed = rate * *pixels as f64;
             out.push_str(&format!(
                 "; a {size} camera at {rate} Hz ({:.1} Mpx/s) {}",
                 needed * 1e-6,
-                if needed <= host.mpx_per_s * 1e6 {
+                if needed <= host.mpx_per_s.median * 1e6 {
                     "fits"
                 } else {
                     "does not fit"
