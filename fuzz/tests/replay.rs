@@ -84,9 +84,17 @@ fn mutate(rng: &mut Rng, seed: &[u8], other: &[u8]) -> Vec<u8> {
     v
 }
 
-fn seeds(target: &str) -> Vec<(PathBuf, Vec<u8>)> {
-    let dir = corpus_dir(target);
-    let mut out: Vec<(PathBuf, Vec<u8>)> = std::fs::read_dir(&dir)
+/// The minimised corpus of the long libFuzzer runs (`fuzz/corpus/<target>/`,
+/// `cargo fuzz cmin`), replayed beside the seeds: every input that reached
+/// new coverage there.
+fn fuzzed_dir(target: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("corpus")
+        .join(target)
+}
+
+fn files(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    std::fs::read_dir(dir)
         .unwrap_or_else(|e| panic!("{}: {e} (BRIGHTPIX_BLESS=1 writes it)", dir.display()))
         .map(|e| e.unwrap().path())
         .filter(|p| p.is_file())
@@ -94,7 +102,15 @@ fn seeds(target: &str) -> Vec<(PathBuf, Vec<u8>)> {
             let bytes = std::fs::read(&p).unwrap();
             (p, bytes)
         })
-        .collect();
+        .collect()
+}
+
+fn seeds(target: &str) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut out = files(&corpus_dir(target));
+    let fuzzed = fuzzed_dir(target);
+    if fuzzed.is_dir() {
+        out.extend(files(&fuzzed));
+    }
     out.sort();
     out
 }
