@@ -108,6 +108,21 @@ fn check_prefix(path: &Path, file: &mut File) -> Result<(u64, u64), IoError> {
             format!("the .npy header claims {header_len} bytes; the file has {len}"),
         ));
     }
+    // A header is one flat dictionary (descr, fortran_order, shape). The
+    // reader's literal parser backtracks exponentially on nested braces (a
+    // 126-byte header of 22 '{' took over 10 s: fuzz/'s npy_reader), so a
+    // header with more than one is refused before it is parsed.
+    let mut header = vec![0u8; header_len.min(1 << 16) as usize];
+    file.seek(std::io::SeekFrom::Start(header_start))
+        .map_err(io)?;
+    file.read_exact(&mut header).map_err(io)?;
+    file.seek(std::io::SeekFrom::Start(0)).map_err(io)?;
+    if header.iter().filter(|&&b| b == b'{').count() > 1 {
+        return Err(IoError::malformed(
+            path,
+            "the .npy header is not one flat dictionary (nested braces)",
+        ));
+    }
     Ok((header_start + header_len, len))
 }
 
@@ -275,6 +290,49 @@ mod tests {
         out.extend_from_slice(dict.as_bytes());
         out.extend_from_slice(data);
         out
+    }
+
+    /// Found by the npy_reader fuzz target: nested braces in the header
+    /// took the header parser over 10 s; refused at once.
+    #[test]
+    fn nested_braces_in_the_header_are_refused() {
+        use base64_free::decode;
+        let bytes = decode("k05VTVBZAQB2AHsnZGVzY3InOiAnfHUxJywgJ2ZvcnRyYW5fb3JkZXInOiBGYWxzZSwgJyVzaGFwZUAnOiAoMyx7e3t7e3t7e3t7e3t7e3t7e3t7e3t7eyA1LCApLCB9ICAgICAgICAgICAgICAgICAgICAgICAgISAgICAgICAgICAgICAgICAgICAgIDAgICAgICAgICAgCgB+AAAABQYHCAkKCwwNDg==");
+        let dir = temp_dir("nested");
+        let path = dir.join("nested.npy");
+        std::fs::write(&path, bytes).unwrap();
+        let started = std::time::Instant::now();
+        let e = read_array(&path).unwrap_err();
+        assert!(e.to_string().contains("nested braces"), "{e}");
+        let e = read_frames(&path).unwrap_err();
+        assert!(e.to_string().contains("nested braces"), "{e}");
+        // Not a timed assertion of speed: a hang guard far above any machine.
+        assert!(started.elapsed().as_secs() < 5);
+    }
+
+    /// A minimal base64 decoder for the test's input (no dependency).
+    mod base64_free {
+        pub fn decode(text: &str) -> Vec<u8> {
+            let value = |c: u8| match c {
+                b'A'..=b'Z' => c - b'A',
+                b'a'..=b'z' => c - b'a' + 26,
+                b'0'..=b'9' => c - b'0' + 52,
+                b'+' => 62,
+                _ => 63,
+            } as u32;
+            let chars: Vec<u8> = text.bytes().filter(|&c| c != b'=').collect();
+            let mut out = Vec::new();
+            for chunk in chars.chunks(4) {
+                let mut n = 0u32;
+                for (k, &c) in chunk.iter().enumerate() {
+                    n |= value(c) << (18 - 6 * k);
+                }
+                for k in 0..chunk.len().saturating_sub(1) {
+                    out.push((n >> (16 - 8 * k)) as u8);
+                }
+            }
+            out
+        }
     }
 
     /// Found by the npy_reader fuzz target: a header length or a shape
