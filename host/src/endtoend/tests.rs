@@ -3,8 +3,8 @@ use crate::simulator::atmosphere::{Atmosphere, Layer};
 
 /// One ground layer, one NGS on axis, science on axis, no delay, no
 /// central obscuration (the 7x7 grid without its 4 dark corners: 45
-/// sub-apertures).
-fn single_layer_on_axis() -> Scenario {
+/// sub-apertures). Shared with `variant_tests`.
+pub(super) fn single_layer_on_axis() -> Scenario {
     let mut config = canary_config();
     let layout = config.grid.clone().expect("a grid");
     let fresh = ProcessingConfig::from_grid(

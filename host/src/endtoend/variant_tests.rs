@@ -3,39 +3,8 @@
 //! atmosphere's.
 
 use super::least_squares::LeastSquares;
+use super::tests::single_layer_on_axis;
 use super::*;
-use crate::simulator::atmosphere::{Atmosphere, Layer};
-
-/// One ground layer, one NGS on axis, no delay, no obscuration (45
-/// sub-apertures): no tomography to do, so a reconstructor without noise
-/// should leave little more than the DM's fitting error.
-fn single_layer_on_axis() -> Scenario {
-    let mut config = canary_config();
-    let layout = config.grid.clone().expect("a grid");
-    let fresh = ProcessingConfig::from_grid(
-        config.camera,
-        layout.grid,
-        &[[0, 0], [6, 0], [0, 6], [6, 6]],
-    );
-    config.windows = fresh.windows;
-    config.grid = fresh.grid;
-    Scenario {
-        config,
-        obscuration_m: 0.0,
-        atmosphere: Atmosphere {
-            layers: vec![Layer {
-                altitude_m: 0.0,
-                fraction: 1.0,
-                wind_speed_m_s: 10.0,
-                wind_direction_deg: 0.0,
-            }],
-            ..Atmosphere::canary()
-        },
-        guide_stars: vec![GuideStar::ON_AXIS],
-        delay_frames: 0.0,
-        ..Scenario::canary()
-    }
-}
 
 /// Mean square of `phi - H M s` over the episode's frames, and of the DM's
 /// best fit of `phi` (the floor).
