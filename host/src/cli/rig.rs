@@ -331,22 +331,15 @@ fn stream(args: StreamArgs) -> Result<()> {
         Ok(batch)
     };
     if let Some(live) = &live {
-        let mut setup = crate::view::Setup::new(
+        live.hub.set_setup(rig_view_setup(
+            &rig,
             format!(
                 "rig stream of {} to {} boards",
                 args.frames.display(),
                 rig.boards.len()
             ),
             args.rig.rig.display().to_string(),
-            rig.whole.clone(),
-        );
-        setup.pixels = true;
-        setup.boards = rig
-            .boards
-            .iter()
-            .map(|b| (b.name.clone(), b.windows.clone()))
-            .collect();
-        live.hub.set_setup(setup);
+        ));
     }
     let hub = live.as_ref().map(|l| l.hub.as_ref());
     let outcome = run_and_report(&rig, &mut clients, total, read, args.verify, 10, hub)?;
@@ -533,22 +526,15 @@ pub(super) fn view_rig(
     }
     let mut clients = open_clients(&rig, ports)?;
     rig::configure(&rig, &mut clients)?;
-    let mut setup = crate::view::Setup::new(
+    hub.set_setup(rig_view_setup(
+        &rig,
         format!(
             "rig of {} boards, frames of {} over and over",
             rig.boards.len(),
             frames.display()
         ),
         rig_path.display().to_string(),
-        rig.whole.clone(),
-    );
-    setup.pixels = true;
-    setup.boards = rig
-        .boards
-        .iter()
-        .map(|b| (b.name.clone(), b.windows.clone()))
-        .collect();
-    hub.set_setup(setup);
+    ));
     let live = std::cell::RefCell::new(LiveBoards::new(&rig));
     let mut stream = RigStream::new(&rig, false);
     let mut on_frame = |m: &rig::MergedFrame| {
@@ -736,4 +722,17 @@ pub(super) fn demo(
     );
     drop(devices);
     Ok(())
+}
+
+/// The live view's set-up for a rig: the whole camera, pixels shown, each
+/// board's name and sub-apertures.
+fn rig_view_setup(rig: &Rig, title: String, source: String) -> crate::view::Setup {
+    let mut setup = crate::view::Setup::new(title, source, rig.whole.clone());
+    setup.pixels = true;
+    setup.boards = rig
+        .boards
+        .iter()
+        .map(|b| (b.name.clone(), b.windows.clone()))
+        .collect();
+    setup
 }
