@@ -219,8 +219,11 @@ impl PyDevice {
         self.with_connection(|c| Ok(c.report.as_ref().map(|p| p.clone_ref(py))))
     }
 
-    /// The device's counters (active configuration id, frames processed
-    /// and dropped, link errors, overruns, pixel errors).
+    /// The device's ``Status`` as a dict (PROTOCOL.md §5): active
+    /// configuration id and digest, frames processed and dropped, link
+    /// errors, overruns, pixel errors, reset reason, health, and
+    /// ``engine``: windows, candidates, compactions, rescans, attentions
+    /// and ``kernel_frames`` (frames in which the engine's row kernel ran).
     fn status<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         self.with_connection(|c| {
             let client = &mut c.client;

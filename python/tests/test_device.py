@@ -41,7 +41,12 @@ def test_configure_stream_verify_in_process(
         report = device.last_stream
         assert report["frames_done"] == 20 and report["mismatches"] == 0
         assert report["slopes_compared"] == 20 * 49
-        assert device.status()["frames_processed"] == 20
+        status = device.status()
+        assert status["frames_processed"] == 20
+        # The engine's counters (protocol 5): 49 selecting windows a frame,
+        # and the row kernel ran.
+        assert status["engine"]["windows"] == 20 * 49
+        assert status["engine"]["kernel_frames"] > 0
 
 
 def test_level_filter_is_followed_across_stream_calls(canary_frames: np.ndarray) -> None:

@@ -332,6 +332,15 @@ fn device_messages() -> Vec<(&'static str, DeviceMessage<'static>)> {
                 watchdog_ms: Some(1000),
                 health: Health::default(),
                 config_digest: Some(0x89ab_cdef),
+                // CANARY's 49 windows a frame, the row kernel in every one.
+                engine: EngineCounters {
+                    windows: 9_800,
+                    candidates: 558_600,
+                    compactions: 12,
+                    rescans: 3,
+                    attentions: 20_531,
+                    kernel_frames: 201,
+                },
             }),
         ),
         (

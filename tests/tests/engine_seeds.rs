@@ -226,6 +226,7 @@ fn add(total: &mut EngineStats, s: EngineStats) {
     total.compactions += s.compactions;
     total.rescans += s.rescans;
     total.attentions += s.attentions;
+    total.kernel_frames += s.kernel_frames;
 }
 
 #[test]

@@ -32,7 +32,7 @@ fn every_case_bit_exact_over_a_pty() {
     let mut client = connect(&device);
     for case in &cases {
         let t = Instant::now();
-        let stream = run_case(&mut client, case);
+        let stream = run_case(&mut client, case).stream;
         eprintln!(
             "  {}: {} frames verified, stream {:.0} ms, case {:.0} ms",
             case.name,

@@ -92,13 +92,19 @@ fn every_case_bit_exact(cpu: QemuCpu) {
     eprintln!("  {}", client.info());
     for case in &cases {
         let t = Instant::now();
-        let stream = run_case(&mut client, case);
+        let run = run_case(&mut client, case);
         check_alive(&mut device);
         eprintln!(
-            "  {}: {} frames verified, stream {:.0} ms, case {:.0} ms",
+            "  {}: {} frames verified, row kernel in {} (expected: {}), stream {:.0} ms, case {:.0} ms",
             case.name,
             case.frames.len(),
-            stream.as_secs_f64() * 1e3,
+            run.engine.kernel_frames,
+            match kernel_expected(case) {
+                Some(true) => "some",
+                Some(false) => "none",
+                None => "not checked",
+            },
+            run.stream.as_secs_f64() * 1e3,
             t.elapsed().as_secs_f64() * 1e3
         );
     }
@@ -340,7 +346,7 @@ fn pixels_over_the_uart_and_a_unix_socket_in_qemu() {
         frames: first.frames[..20].to_vec(),
         ..first
     };
-    let stream = run_case(&mut client, case);
+    let stream = run_case(&mut client, case).stream;
     eprintln!(
         "  over UART0: {} frames in {:.2} s",
         case.frames.len(),

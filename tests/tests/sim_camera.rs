@@ -218,6 +218,16 @@ fn capture_verify_in_qemu() {
         "  QEMU: 20 frames captured at the board's 10 frames/s and verified bit for bit in {:.2} s",
         t.elapsed().as_secs_f64()
     );
+    // CANARY (16-bit, 112 wide, 16x16 windows) from the camera ring: the
+    // engine's row kernel ran (issue 27 item 13: a ring or run buffer that
+    // is not word-aligned would keep every row on the general path).
+    let status = Client::open(device.port()).unwrap().status().unwrap();
+    assert_eq!(status.frames_processed, 20, "{status:?}");
+    assert!(
+        status.engine.kernel_frames > 0 && status.engine.windows > 0,
+        "the row kernel never ran on the camera's frames: {:?}",
+        status.engine
+    );
     // A second capture (its own request and FIFO) starts at frame 0 again.
     capture(
         device.port(),

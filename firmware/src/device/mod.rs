@@ -59,7 +59,7 @@ use brightpix_protocol::wire::{
 use embassy_futures::select::{select, select3, Either, Either3};
 use embedded_io_async::{Read, Write};
 
-use crate::engine::{Engine, EngineMemory, OutputSink, SubapertureResult};
+use crate::engine::{Engine, EngineMemory, EngineStats, OutputSink, SubapertureResult};
 use fmt::{log_debug, log_info, log_warn};
 use upload::Upload;
 
@@ -117,6 +117,9 @@ struct Core<'d, T, W> {
     capture: Option<Capture>,
     capture_finished: bool,
     counters: Status,
+    /// The current engine's statistics as last added to
+    /// `counters.engine` (`fold_engine`).
+    engine_seen: EngineStats,
     /// Reads the board's health for `Status.health`.
     health: fn() -> Health,
 }
@@ -214,6 +217,7 @@ impl<'d, T: Read + Write, C: PixelSource> Device<'d, T, C, NoWatchdog> {
                 capture: None,
                 capture_finished: false,
                 counters: Status::default(),
+                engine_seen: EngineStats::default(),
                 health: Health::default,
             },
         }
@@ -255,6 +259,7 @@ impl<'d, T: Read + Write, C: PixelSource> Device<'d, T, C, NoWatchdog> {
                 capture: core.capture,
                 capture_finished: core.capture_finished,
                 counters,
+                engine_seen: core.engine_seen,
                 health: core.health,
             },
         }
@@ -329,7 +334,11 @@ impl<'d, T: Read + Write, C: PixelSource, W: Watchdog> Device<'d, T, C, W> {
                     None => Engine::resume(config, memory),
                 };
                 match built {
-                    Ok(e) => engine = Some(e),
+                    Ok(e) => {
+                        // A new engine counts from 0.
+                        core.engine_seen = EngineStats::default();
+                        engine = Some(e);
+                    }
                     Err(e) => {
                         // Cannot happen: the configuration was vetted with the
                         // same plan. Go back to the previous one, if any.
@@ -364,7 +373,11 @@ impl<'d, T: Read + Write, C: PixelSource, W: Watchdog> Device<'d, T, C, W> {
                 }))
                 .await?;
             }
-            core.serve(rx, source, &mut engine, staging).await?;
+            let served = core.serve(rx, source, &mut engine, staging).await;
+            if let Some(engine) = &engine {
+                core.fold_engine(engine);
+            }
+            served?;
         }
     }
 }
@@ -377,6 +390,28 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
             health: (self.health)(),
             ..self.counters
         }
+    }
+
+    /// Adds what `engine` did since the last call (or since it was built)
+    /// to `Status.engine`. Called at every frame's end, so that the
+    /// engine's 32-bit counts cannot wrap unseen.
+    fn fold_engine(&mut self, engine: &Engine<'_, '_>) {
+        let now = engine.stats();
+        let seen = core::mem::replace(&mut self.engine_seen, now);
+        let total = &mut self.counters.engine;
+        let add = |total: &mut u64, now: u32, seen: u32| {
+            *total = total.saturating_add(u64::from(now.wrapping_sub(seen)));
+        };
+        add(&mut total.windows, now.windows, seen.windows);
+        add(&mut total.candidates, now.candidates, seen.candidates);
+        add(&mut total.compactions, now.compactions, seen.compactions);
+        add(&mut total.rescans, now.rescans, seen.rescans);
+        add(&mut total.attentions, now.attentions, seen.attentions);
+        add(
+            &mut total.kernel_frames,
+            now.kernel_frames,
+            seen.kernel_frames,
+        );
     }
 
     /// Handles frames and pixels until the active configuration changes.
@@ -541,6 +576,9 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
                 Ok(Ack::UploadAborted { upload_id })
             }
             HostMessage::StatusRequest => {
+                if let Some(engine) = engine {
+                    self.fold_engine(engine);
+                }
                 let status = self.status();
                 self.send(&DeviceMessage::Status(status)).await?;
                 return Ok(Next::Continue);

@@ -145,6 +145,7 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
             if done {
                 let sent = self.frame.take().map_or(0, |p| p.sent);
                 self.counters.frames_processed += 1;
+                self.fold_engine(engine);
                 self.log_progress();
                 self.send(&DeviceMessage::FrameDone { frame, count: sent })
                     .await?;

@@ -152,7 +152,10 @@ pub fn run(args: DemoArgs) -> Result<()> {
         println!("    mismatch: {m}");
     }
     match &status {
-        Ok(s) => println!("  {}", format_status(s)),
+        Ok(s) => {
+            println!("  {}", format_status(s));
+            println!("  {}", format_engine(s));
+        }
         Err(e) => println!("  device status: unavailable ({e})"),
     }
     if let Some(exit) = firmware_exit {
@@ -190,5 +193,36 @@ pub fn format_status(s: &Status) -> String {
         s.reset_reason,
         s.watchdog_ms
             .map_or("none".into(), |ms| format!("{ms} ms, fed by the device loop"))
+    )
+}
+
+/// The device's engine counters (`Status.engine`, since the device
+/// started) on one line: whether the row kernel ran, and the slow paths.
+pub fn format_engine(s: &Status) -> String {
+    let e = &s.engine;
+    let per_window = |n: u64| {
+        if e.windows == 0 {
+            String::new()
+        } else {
+            format!(" ({:.1} a window)", n as f64 / e.windows as f64)
+        }
+    };
+    format!(
+        "device engine: row kernel ran in {} frames ({} processed, {} dropped){}; windows {}, candidates {}{}, compactions {}, rescans {}, kernel attention stops {}{}",
+        e.kernel_frames,
+        s.frames_processed,
+        s.frames_dropped,
+        if e.kernel_frames == 0 && s.frames_processed > 0 {
+            ": every pixel took the general path"
+        } else {
+            ""
+        },
+        e.windows,
+        e.candidates,
+        per_window(e.candidates),
+        e.compactions,
+        e.rescans,
+        e.attentions,
+        per_window(e.attentions),
     )
 }

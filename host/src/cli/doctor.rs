@@ -17,7 +17,7 @@ use crate::link::{Client, DeviceInfo};
 
 #[derive(Args)]
 #[command(
-    about = "Check a device's health: silicon and errata, clocks, USB clock trimming, stack, camera interface, resets, link",
+    about = "Check a device's health: silicon and errata, clocks, USB clock trimming, stack, camera interface, resets, link, the engine's row kernel",
     after_help = "Examples:\n  brightpix doctor --port /dev/ttyACM0\n  brightpix doctor --port /dev/pts/4        # a simulated device: hardware-only lines say so\n\n\
 Exit status 1 if any line is FAIL. firmware/README.md (\"Bring-up\") says what each line should read."
 )]
@@ -323,6 +323,37 @@ pub fn examine(info: &DeviceInfo, status: &Status, round_trip: Duration) -> Vec<
             status.overruns,
             status.pixel_errors
         ),
+    ));
+    // The engine's row kernel (an assembly routine on Cortex-M) takes
+    // word-aligned rows of kernel-ready windows; a board whose pixel
+    // buffers are not word-aligned runs every frame on the general path,
+    // correct but slower than the bench's figures.
+    let e = &status.engine;
+    lines.push(check(
+        "engine",
+        if e.kernel_frames == 0 && status.frames_processed > 0 {
+            Verdict::Warn
+        } else {
+            Verdict::Ok
+        },
+        if status.frames_processed == 0 {
+            "no frame processed yet".into()
+        } else if e.kernel_frames == 0 {
+            format!(
+                "the row kernel ran in none of {} frames: every pixel took the engine's general path, correct but slower than `brightpix bench` says; the cause is the configuration (windows at odd columns or of odd width, no selection, below 16 bits pixels outside every window) or a pixel buffer the board does not word-align (firmware/README.md)",
+                status.frames_processed
+            )
+        } else {
+            format!(
+                "row kernel in {} frames ({} processed, {} dropped); {} windows, {} rescanned, {} compactions",
+                e.kernel_frames,
+                status.frames_processed,
+                status.frames_dropped,
+                e.windows,
+                e.rescans,
+                e.compactions
+            )
+        },
     ));
     lines
 }

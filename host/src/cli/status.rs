@@ -7,7 +7,7 @@ use crate::link::Client;
 
 #[derive(Args)]
 #[command(
-    about = "Show a device's identity, limits and counters",
+    about = "Show a device's identity, limits, counters and what its engine did",
     after_help = "Examples:\n  brightpix status --port /dev/ttyACM0\n  brightpix status --port /dev/pts/4"
 )]
 pub struct StatusArgs {
@@ -21,5 +21,6 @@ pub fn run(args: StatusArgs) -> Result<()> {
     let s = client.status()?;
     println!("device: {}", client.info());
     println!("{}", super::demo::format_status(&s));
+    println!("{}", super::demo::format_engine(&s));
     Ok(())
 }

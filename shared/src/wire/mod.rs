@@ -77,9 +77,10 @@ pub use tables::{PixelRowsPlan, UploadPlan};
 /// commit CRC covers the header too, and `Status` reports it), a constant
 /// background as a scalar, N = 0 for every sub-aperture as its own fault.
 /// Version 4: the crop rectangle of a board that captures part of a
-/// sensor (`ConfigHeader.crop`, `DeviceError::Crop`).
+/// sensor (`ConfigHeader.crop`, `DeviceError::Crop`). Version 5: the
+/// engine's counters in `Status` (`Status.engine`).
 /// PROTOCOL.md §12 lists every version.
-pub const PROTOCOL_VERSION: u16 = 4;
+pub const PROTOCOL_VERSION: u16 = 5;
 
 /// Largest postcard encoding of a message that every frame buffer holds.
 pub const MAX_MESSAGE_LEN: usize = 1024;
@@ -449,6 +450,32 @@ pub struct Status {
     /// The active configuration's digest: the CRC of its commit (CRC-32 of
     /// the header's encoding and every table byte, PROTOCOL.md §7).
     pub config_digest: Option<u32>,
+    /// The engine's work since the device started ([`EngineCounters`]).
+    pub engine: EngineCounters,
+}
+
+/// What the device's streaming engine did since the device started, summed
+/// over every configuration (the firmware's `EngineStats`): how often it
+/// took its slow paths, and whether its row kernel ran. Speed only: no
+/// result depends on them. Counted like the fault counters (from device
+/// start, saturating).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct EngineCounters {
+    /// Windows finished with selection.
+    pub windows: u64,
+    /// Candidates those windows held at their end.
+    pub candidates: u64,
+    /// Candidate buffers that filled and were compacted.
+    pub compactions: u64,
+    /// Windows computed again from the row history.
+    pub rescans: u64,
+    /// Times the row kernel stopped at a window for the engine's attention.
+    pub attentions: u64,
+    /// Frames (whole or abandoned) in which the row kernel ran at least
+    /// once; 0 while every pixel takes the engine's general path (rows not
+    /// word-aligned, windows at odd columns or of odd width, no selection,
+    /// below 16 bits pixels outside every window: firmware/README.md).
+    pub kernel_frames: u64,
 }
 
 /// Why the device last started, as its board's reset controller says.

@@ -198,6 +198,14 @@ fn device_examples() -> Vec<DeviceMessage<'static>> {
                 }),
             },
             config_digest: Some(u32::MAX),
+            engine: EngineCounters {
+                windows: u64::MAX,
+                candidates: u64::MAX,
+                compactions: u64::MAX,
+                rescans: u64::MAX,
+                attentions: u64::MAX,
+                kernel_frames: u64::MAX,
+            },
         }),
         DeviceMessage::Slopes {
             frame: u32::MAX,
@@ -421,12 +429,12 @@ fn encoding_is_as_documented() {
     assert_eq!(
         enc_host(HostMessage::Hello {
             protocol: Hello {
-                version: 4,
+                version: 5,
                 schema: 300
             },
             session: 7
         }),
-        [0x01, 0x09, 0x04, 0xac, 0x02, 0x07, 0x6f, 0x33, 0x70, 0x35, 0x00]
+        [0x01, 0x09, 0x05, 0xac, 0x02, 0x07, 0x0a, 0x54, 0xcc, 0x8d, 0x00]
     );
     assert_eq!(
         enc_device(DeviceMessage::FrameDone {
@@ -724,7 +732,7 @@ fn schema_hash_is_pinned() {
     );
 }
 
-const PINNED_SCHEMA_HASH: u64 = 0xc132_233f_7b63_282b;
+const PINNED_SCHEMA_HASH: u64 = 0x833e_7e9e_3831_8f4e;
 
 fn hash_of<T: Schema + ?Sized>() -> u64 {
     u64::from_le_bytes(hash_ty_path::<T>(WIRE_CONVENTIONS))

@@ -11,7 +11,9 @@ use brightpix::link::verify::Verifier;
 use brightpix::link::{pixel_rows_frames, Client, FrameOutcome, LinkError};
 use brightpix::sil::{canary_config, canary_frames, stream_and_verify, tiled_frames};
 use brightpix::simulator::{SimulationParams, Simulator};
-use brightpix_protocol::wire::{DeviceError, FrameFault, HostMessage, UploadPlan, MAX_CHUNK_BYTES};
+use brightpix_protocol::wire::{
+    DeviceError, EngineCounters, FrameFault, HostMessage, UploadPlan, MAX_CHUNK_BYTES,
+};
 use brightpix_protocol::{Camera, LevelFilter, SelectionRule, SubapertureWindow};
 
 /// Frames per case (the issue asks for at least 100).
@@ -142,11 +144,99 @@ pub fn spot_frames(
 }
 
 /// Every case: the paper's default NGS spots (CANARY), elongated Rayleigh
-/// LGS spots (CANARY, 1000 m gate), and the edge cases on the small camera.
+/// LGS spots (CANARY, 1000 m gate), the edge cases on the small camera,
+/// and windows the row kernel cannot take.
 pub fn all_cases() -> Vec<Case> {
     let mut cases = vec![canary_case(), rayleigh_case()];
     cases.extend(edge_cases());
+    cases.push(odd_windows_case());
     cases
+}
+
+/// 16-bit pixels on the small camera in 7x7 windows: no window is whole
+/// 32-bit words (odd width), so the engine's row kernel never takes one
+/// (`OpenWindow::kernel_ready`) and every pixel goes the general path.
+pub fn odd_windows_case() -> Case {
+    let mut windows = Vec::new();
+    for r in 0..2u16 {
+        for c in 0..4u16 {
+            windows.push(SubapertureWindow {
+                x: 1 + 9 * c,
+                y: 2 + 10 * r,
+                width: 7,
+                height: 7,
+            });
+        }
+    }
+    let config = ProcessingConfig {
+        pixels: PixelCounts::All(8),
+        ..ProcessingConfig::new(
+            Camera {
+                width: 40,
+                height: 24,
+                bit_depth: 16,
+            },
+            windows,
+        )
+    };
+    let frames = spot_frames(config.camera, FRAMES, 30, 8000.0, 300, 200);
+    Case {
+        name: "row kernel cannot run: 16-bit, every window 7 pixels wide",
+        config,
+        frames,
+    }
+}
+
+/// Whether the engine's row kernel must run in `case`'s frames: 16-bit
+/// pixels (no bit-depth check keeps whole rows off the kernel), an even
+/// camera width (every row word-aligned when the device's pixel buffer is
+/// and messages start at even pixels, as the host's do) and a selecting
+/// window of whole words (even first column and width). `Some(false)`:
+/// it cannot (no window of whole words), `None`: it depends on the pixels.
+pub fn kernel_expected(case: &Case) -> Option<bool> {
+    let c = &case.config;
+    let n = |k: usize| match &c.pixels {
+        PixelCounts::All(n) => *n,
+        PixelCounts::PerSubaperture(v) => v[k],
+    };
+    let words = |w: &SubapertureWindow| (w.x | w.width) & 1 == 0;
+    if !c.windows.iter().any(words) {
+        return Some(false);
+    }
+    let selects = c
+        .windows
+        .iter()
+        .enumerate()
+        .any(|(k, w)| words(w) && u32::from(n(k)) < u32::from(w.width) * u32::from(w.height));
+    if c.camera.bit_depth == 16 && c.camera.width.is_multiple_of(2) && selects {
+        Some(true)
+    } else {
+        None
+    }
+}
+
+/// Requires the device's engine counters over a case (`Status.engine`,
+/// after minus before) to show the row kernel where it must run and not
+/// where it cannot ([`kernel_expected`]).
+pub fn check_kernel(case: &Case, engine: &EngineCounters, frames: u64) {
+    match kernel_expected(case) {
+        // Not necessarily in every frame: the first after the
+        // configuration has no seeds (its windows open on the general
+        // path), and a window may leave the kernel for a frame (a rescan,
+        // a full buffer). A pixel buffer that is not word-aligned keeps it
+        // out of every frame.
+        Some(true) => assert!(
+            engine.kernel_frames > 0 && engine.kernel_frames <= frames,
+            "{}: the row kernel must run (is the device's pixel buffer word-aligned?): {engine:?}",
+            case.name
+        ),
+        Some(false) => assert_eq!(
+            engine.kernel_frames, 0,
+            "{}: the row kernel cannot take these windows: {engine:?}",
+            case.name
+        ),
+        None => {}
+    }
 }
 
 pub fn canary_case() -> Case {
@@ -346,9 +436,19 @@ pub fn edge_cases() -> Vec<Case> {
     cases
 }
 
+/// What [`run_case`] measured.
+pub struct CaseRun {
+    /// The stream's duration.
+    pub stream: Duration,
+    /// The device's engine counters over the case (after minus before).
+    pub engine: EngineCounters,
+}
+
 /// Configures the device for `case`, streams its frames, and requires every
-/// result to equal the reference's. Returns the stream's duration.
-pub fn run_case(client: &mut Client, case: &Case) -> Duration {
+/// result to equal the reference's, and the device's engine counters to
+/// show its row kernel where it must run and not where it cannot
+/// ([`check_kernel`]).
+pub fn run_case(client: &mut Client, case: &Case) -> CaseRun {
     let view = case.config.view();
     view.validate()
         .unwrap_or_else(|e| panic!("{}: invalid test configuration: {e}", case.name));
@@ -384,7 +484,26 @@ pub fn run_case(client: &mut Client, case: &Case) -> Duration {
         case.name
     );
     assert_eq!(after.frames_dropped, before.frames_dropped, "{}", case.name);
-    run.report.elapsed
+    let (a, b) = (after.engine, before.engine);
+    let engine = EngineCounters {
+        windows: a.windows - b.windows,
+        candidates: a.candidates - b.candidates,
+        compactions: a.compactions - b.compactions,
+        rescans: a.rescans - b.rescans,
+        attentions: a.attentions - b.attentions,
+        kernel_frames: a.kernel_frames - b.kernel_frames,
+    };
+    // Windows with selection only (none where N covers a whole window).
+    assert!(
+        engine.windows <= (case.frames.len() * case.config.windows.len()) as u64,
+        "{}: {engine:?}",
+        case.name
+    );
+    check_kernel(case, &engine, case.frames.len() as u64);
+    CaseRun {
+        stream: run.report.elapsed,
+        engine,
+    }
 }
 
 /// Flips one bit of the `nth` data byte of a COBS frame (not a code byte,

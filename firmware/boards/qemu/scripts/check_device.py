@@ -266,7 +266,10 @@ def decode_device(body):
                               decode_errors=r.varint(), overruns=r.varint(),
                               pixel_errors=r.varint(), session=r.option(r.varint),
                               reset_reason=r.varint(), watchdog_ms=r.option(r.varint),
-                              health=decode_health(r), config_digest=r.option(r.varint))
+                              health=decode_health(r), config_digest=r.option(r.varint),
+                              engine=dict(windows=r.varint(), candidates=r.varint(),
+                                          compactions=r.varint(), rescans=r.varint(),
+                                          attentions=r.varint(), kernel_frames=r.varint()))
     if kind == 4:
         frame_id = r.varint()
         entries = []
@@ -637,7 +640,8 @@ def check_vectors():
             assert fields["capabilities"]["board"] == h["capabilities"]["board"]
         if kind == "Status":
             st = message["Status"]
-            for key in ("frames_processed", "crc_errors", "session", "watchdog_ms"):
+            for key in ("frames_processed", "crc_errors", "session", "watchdog_ms",
+                        "config_digest", "engine"):
                 assert fields[key] == st[key], (key, fields, st)
             health = dict(st["health"])
             if health["silicon"] is not None:

@@ -465,6 +465,7 @@ pub fn measure(
         compactions: after.compactions - before.compactions,
         rescans: after.rescans - before.rescans,
         attentions: after.attentions - before.attentions,
+        kernel_frames: after.kernel_frames - before.kernel_frames,
     };
     Ok(m)
 }
