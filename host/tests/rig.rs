@@ -14,6 +14,7 @@ use brightpix::link::Client;
 use brightpix::reference::Reference;
 use brightpix::rig::{self, BoardKind, CostModel, Rig, RigStartError};
 use brightpix::sim_device::{CameraOptions, CameraSpec, InProcessDevice, InProcessOptions};
+use brightpix_protocol::wire::tables::config_digest;
 use brightpix_protocol::{Camera, RegularGrid};
 
 /// A 12-bit 48x48 camera, 3x3 windows of 16x16, N = 6.
@@ -447,6 +448,93 @@ fn capture_with_three_boards_each_cropping_one_camera() {
         "3",
     ]);
     assert!(!ok && text.contains("has no camera of its own"), "{text}");
+}
+
+/// One board's part as a configuration file of its own (issue 23): `rig
+/// plan --board-configs` writes each board's configuration with its
+/// rectangle as `[camera.crop]`; each loads back equal to the part the rig
+/// file gives that board, and `capture --config` takes one alone, on a
+/// device whose camera crops it from the whole sensor, bit for bit.
+#[test]
+fn a_boards_part_is_a_configuration_file_of_its_own() {
+    let dir = common::scratch("rig", "board-configs");
+    let config = dir.join("wfs.toml");
+    std::fs::write(
+        &config,
+        "[camera]\nwidth = 48\nheight = 48\nbit_depth = 12\n\
+         [subapertures.grid]\nx = 0\ny = 0\ncolumns = 3\nrows = 3\nwidth = 16\nheight = 16\n\
+         [calibration]\nbackground_counts = 3\n[selection]\npixels = 6\n",
+    )
+    .unwrap();
+    let rig_file = dir.join("rig.toml");
+    let boards = dir.join("boards");
+    let (ok, text) = run(&[
+        "rig",
+        "plan",
+        "--config",
+        config.to_str().unwrap(),
+        "--boards",
+        "3",
+        "--out",
+        rig_file.to_str().unwrap(),
+        "--board-configs",
+        boards.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    assert!(text.contains("board-2.toml"), "{text}");
+    let rig = Rig::load(&rig_file).unwrap();
+    for b in &rig.boards {
+        let path = boards.join(format!("{}.toml", b.name));
+        let written = std::fs::read_to_string(&path).unwrap();
+        assert!(written.contains("[camera.crop]"), "{written}");
+        let loaded = ProcessingConfig::load(&path).unwrap();
+        assert_eq!(loaded, b.config, "{}", b.name);
+        assert_eq!(
+            config_digest(&loaded.view()),
+            config_digest(&b.config.view())
+        );
+    }
+    // The middle band alone, captured from a camera of the whole sensor.
+    let device = InProcessDevice::start(InProcessOptions {
+        camera: Some(CameraOptions {
+            spec: CameraSpec { seed: 4 },
+            fps: 100,
+        }),
+        ..InProcessOptions::default()
+    })
+    .unwrap();
+    let board = boards.join("board-1.toml");
+    let (ok, text) = run(&[
+        "capture",
+        "--port",
+        device.port(),
+        "--config",
+        board.to_str().unwrap(),
+        "--count",
+        "10",
+        "--verify",
+        "--seed",
+        "4",
+    ]);
+    assert!(ok, "{text}");
+    assert!(
+        text.contains("verified 10 of 10 frames") && text.contains(": 0 mismatches"),
+        "{text}"
+    );
+    // `rig check --board-configs` never writes over the rig's own files.
+    let renamed = std::fs::read_to_string(&rig_file)
+        .unwrap()
+        .replace("name = \"board-0\"", "name = \"rig\"");
+    std::fs::write(&rig_file, renamed).unwrap();
+    let (ok, text) = run(&[
+        "rig",
+        "check",
+        "--rig",
+        rig_file.to_str().unwrap(),
+        "--board-configs",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(!ok && text.contains("would overwrite"), "{text}");
 }
 
 /// A board that never gives frame 5 (it was never sent it: a frame its

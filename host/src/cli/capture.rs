@@ -103,11 +103,13 @@ pub fn run(args: CaptureArgs) -> Result<()> {
                     .to_string(),
                 c.clone(),
             );
-            setup.pixels = args.verify;
+            // With a crop the frames shown would be the rectangle's own
+            // simulation, not the sensor's cut: none shown.
+            setup.pixels = args.verify && c.crop.is_none();
             live.hub.set_setup(setup);
             live.hub
                 .set_health(crate::view::Health::from_status(&status));
-            args.verify.then(|| {
+            (args.verify && c.crop.is_none()).then(|| {
                 crate::view::device::PixelMaker::start(live.hub.clone(), c.camera, args.seed)
             })
         }
@@ -223,7 +225,7 @@ pub fn run(args: CaptureArgs) -> Result<()> {
             .map(|o| o.frame())
             .max()
             .map_or(0, |f| f + 1);
-        let frames = CameraFrames::new(config.camera, args.seed).frames(0, last as usize);
+        let frames = simulated_frames(config, args.seed, last as usize);
         verify_outcomes(verifier, &frames, 0, &outcomes);
         super::stream::print_verification(verifier, args.count as usize);
     }
@@ -269,6 +271,28 @@ fn camera_counters_during(
         a.dma_fifo_errors.wrapping_sub(b.dma_fifo_errors),
         a.fifo_not_drained.wrapping_sub(b.fifo_not_drained),
     ))
+}
+
+/// The first `count` frames a simulated camera of `seed` gives a device
+/// configured with `config`: with a crop (`[camera.crop]`, a board of a
+/// rig), the whole sensor's frames cut to the rectangle, as the device's
+/// camera interface cuts them (PROTOCOL.md §9).
+fn simulated_frames(config: &ProcessingConfig, seed: u64, count: usize) -> Vec<Vec<u16>> {
+    let Some(crop) = config.crop else {
+        return CameraFrames::new(config.camera, seed).frames(0, count);
+    };
+    let sensor = crop.sensor(config.camera);
+    let rectangle = crate::rig::Rectangle {
+        x: crop.x,
+        y: crop.y,
+        width: config.camera.width,
+        height: config.camera.height,
+    };
+    CameraFrames::new(sensor, seed)
+        .frames(0, count)
+        .iter()
+        .map(|frame| rectangle.crop(frame, usize::from(sensor.width)))
+        .collect()
 }
 
 #[cfg(test)]

@@ -27,7 +27,8 @@ use crate::sim_device::{InProcessDevice, QemuCpu, QemuDevice, QemuOptions};
     about = "Several boards on one camera: plan the split, configure the boards, stream and merge their results",
     after_help = "Examples:\n  \
 brightpix rig plan --config examples/canary.toml --boards 3 --camera-rate 1000 --out rig.toml\n  \
-brightpix rig check --rig rig.toml\n  \
+brightpix rig check --rig rig.toml --board-configs boards/   # also boards/board-K.toml, one board's part each\n  \
+brightpix configure --port /dev/ttyACM0 --config boards/board-0.toml   # one board alone\n  \
 brightpix rig configure --rig rig.toml\n  \
 brightpix rig stream --rig rig.toml --frames frames.npy --verify --out slopes.npy\n  \
 brightpix demo --boards 3            # three simulated devices on one simulated camera\n\n\
@@ -44,7 +45,7 @@ enum RigCommand {
     /// Split a whole-camera configuration over K boards and write rig.toml.
     Plan(PlanArgs),
     /// Load a rig file, check it and print each board's part and predicted load.
-    Check(CheckArgs),
+    Check(CheckCommandArgs),
     /// Upload each board's part of the rig and check that every board runs it.
     Configure(CheckArgs),
     /// Stream recorded frames to the rig's boards and merge their results.
@@ -75,6 +76,20 @@ struct PlanArgs {
     /// Write the rig here (rig.toml); without it the file is printed.
     #[arg(long, value_name = "rig.toml")]
     out: Option<PathBuf>,
+    /// Also write each board's own configuration, DIR/<board name>.toml (its rectangle as
+    /// [camera.crop]), which `brightpix configure --config` takes for that board alone.
+    #[arg(long, value_name = "DIR")]
+    board_configs: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct CheckCommandArgs {
+    #[command(flatten)]
+    rig: CheckArgs,
+    /// Also write each board's own configuration, DIR/<board name>.toml (its rectangle as
+    /// [camera.crop]), which `brightpix configure --config` takes for that board alone.
+    #[arg(long, value_name = "DIR")]
+    board_configs: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -121,8 +136,11 @@ pub fn run(args: RigArgs) -> Result<()> {
     match args.command {
         RigCommand::Plan(a) => plan(a),
         RigCommand::Check(a) => {
-            let rig = Rig::load(&a.rig)?;
+            let rig = Rig::load(&a.rig.rig)?;
             print_rig(&rig, None);
+            if let Some(dir) = &a.board_configs {
+                write_board_configs(&rig, dir, &[&a.rig.rig])?;
+            }
             Ok(())
         }
         RigCommand::Configure(a) => {
@@ -210,6 +228,47 @@ fn plan(args: PlanArgs) -> Result<()> {
             println!("wrote {}", out.display());
         }
         None => print!("\n{text}"),
+    }
+    if let Some(dir) = &args.board_configs {
+        let mut keep: Vec<&Path> = vec![&args.config];
+        if let Some(out) = &args.out {
+            keep.push(out);
+        }
+        write_board_configs(&rig, dir, &keep)?;
+    }
+    Ok(())
+}
+
+/// Writes each board's configuration as `dir/<board name>.toml` (and the
+/// sibling `.npy` files it may need): an ordinary configuration file whose
+/// camera is the board's rectangle, placed on the sensor by `[camera.crop]`
+/// (docs/CONFIG.md). Refuses to overwrite any of `keep` (the whole
+/// configuration, the rig file).
+fn write_board_configs(rig: &Rig, dir: &Path, keep: &[&Path]) -> Result<()> {
+    let canonical = |p: &Path| std::fs::canonicalize(p).ok();
+    for b in &rig.boards {
+        let target = dir.join(format!("{}.toml", b.name));
+        if let Some(t) = canonical(&target) {
+            if keep.iter().any(|k| canonical(k).as_ref() == Some(&t)) {
+                bail!(
+                    "--board-configs {}: board {:?}'s configuration would overwrite {}: choose another directory",
+                    dir.display(),
+                    b.name,
+                    target.display()
+                );
+            }
+        }
+        let path = b
+            .config
+            .save(dir, &b.name)
+            .with_context(|| format!("board {:?}'s configuration", b.name))?;
+        println!(
+            "wrote {} (board {:?}: {} sub-apertures, rectangle {})",
+            path.display(),
+            b.name,
+            b.windows.len(),
+            b.rectangle.describe()
+        );
     }
     Ok(())
 }

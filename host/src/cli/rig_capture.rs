@@ -22,7 +22,8 @@ use crate::sim_device::CameraFrames;
 pub struct CaptureArgs {
     #[command(flatten)]
     rig: CheckArgs,
-    /// Frames to capture (each board's capture starts at the camera's frame 0).
+    /// Frames to capture (each board numbers them from its own capture start: simulated cameras
+    /// start together; real boards are not yet started on one camera frame, see the README).
     #[arg(long, value_name = "N", value_parser = super::at_least_one)]
     count: usize,
     /// Check every merged frame against the whole-camera reference on the simulated camera's

@@ -175,7 +175,7 @@ impl Converter {
             level_filter: values.level_filter,
             reference_slopes: None,
             min_flux: 0,
-            crop: None,
+            crop: values.crop,
         };
         // Camera, windows and selection first, so that map shapes are
         // checked against a sound camera and window list.

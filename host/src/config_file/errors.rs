@@ -144,9 +144,8 @@ impl ErrorSite {
     ) -> ConfigFileError {
         use ConfigError::*;
         let (field, message) = match e {
-            CameraSize { .. } | BitDepth { .. } | CropOutsideSensor { .. } => {
-                ("camera", e.to_string())
-            }
+            CameraSize { .. } | BitDepth { .. } => ("camera", e.to_string()),
+            CropOutsideSensor { .. } => ("camera.crop", e.to_string()),
             NoSubapertures | TooManySubapertures { .. } => (sources.windows, e.to_string()),
             EmptyWindow { index } => (
                 sources.windows,

@@ -114,8 +114,7 @@ pub struct ProcessingConfig {
     /// Minimum flux in 1/16 count.
     pub min_flux: i64,
     /// Where `camera` lies on a larger sensor: a board's part of a rig
-    /// (`rig::board_config` sets it; the TOML file has no key for it, a
-    /// rig file gives it, and saving such a configuration is refused).
+    /// (`rig::board_config` sets it; in the TOML file `[camera.crop]`).
     pub crop: Option<Crop>,
 }
 

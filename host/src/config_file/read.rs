@@ -6,7 +6,7 @@
 
 use std::path::{Path, PathBuf};
 
-use brightpix_protocol::{Camera, LevelFilter, SubapertureWindow};
+use brightpix_protocol::{Camera, Crop, LevelFilter, SubapertureWindow};
 
 use super::errors::{ErrorSite, Result};
 use super::schema::FileConfig;
@@ -90,6 +90,12 @@ impl FileReader {
             )),
         };
         let mut values = ConfigValues::new(camera, subapertures);
+        values.crop = file.camera.crop.map(|c| Crop {
+            x: c.x,
+            y: c.y,
+            sensor_width: c.sensor_width,
+            sensor_height: c.sensor_height,
+        });
 
         let sel = file.selection;
         values.rule = sel.rule.unwrap_or_default();
@@ -418,6 +424,51 @@ min_flux_counts = 12.5
             "{BASE}\n[calibration]\nbackground_counts = 70000\n"
         ));
         assert_eq!(err.field.as_deref(), Some("calibration.background_counts"));
+    }
+
+    /// `[camera.crop]`: the camera is a rectangle of a larger sensor (one
+    /// board of a rig); checked against the sensor like the rest.
+    #[test]
+    fn a_crop_places_the_camera_on_its_sensor() {
+        let crop = "\n[camera.crop]\nx = 16\ny = 32\nsensor_width = 112\nsensor_height = 112\n";
+        let c =
+            parse(&BASE.replace("bit_depth = 12\n", &format!("bit_depth = 12\n{crop}"))).unwrap();
+        assert_eq!(
+            c.crop,
+            Some(brightpix_protocol::Crop {
+                x: 16,
+                y: 32,
+                sensor_width: 112,
+                sensor_height: 112
+            })
+        );
+        assert_eq!(c.view().crop, c.crop);
+        assert_eq!(parse(BASE).unwrap().crop, None);
+        // 32 + 48 rows > a sensor of 64.
+        let err = invalid(&BASE.replace(
+            "bit_depth = 12\n",
+            "bit_depth = 12\n[camera.crop]\nx = 0\ny = 32\nsensor_width = 64\nsensor_height = 64\n",
+        ));
+        assert_eq!(err.field.as_deref(), Some("camera.crop"), "{err}");
+        assert!(
+            matches!(
+                err.kind,
+                ConfigFileErrorKind::Invalid(ConfigError::CropOutsideSensor { .. })
+            ),
+            "{err}"
+        );
+        assert!(err.message.contains("64x64 sensor"), "{err}");
+        // Every key is required, no other is known.
+        let err = invalid(&BASE.replace(
+            "bit_depth = 12\n",
+            "bit_depth = 12\n[camera.crop]\nx = 0\ny = 0\nsensor_width = 64\n",
+        ));
+        assert!(err.message.contains("sensor_height"), "{err}");
+        let err = invalid(&BASE.replace(
+            "bit_depth = 12\n",
+            "bit_depth = 12\n[camera.crop]\nx = 0\ny = 0\nwidth = 64\nsensor_width = 64\nsensor_height = 64\n",
+        ));
+        assert!(err.message.contains("unknown field `width`"), "{err}");
     }
 
     #[test]

@@ -38,15 +38,6 @@ impl ProcessingConfig {
                 format!("configuration name {name:?} must be a plain file name"),
             ));
         }
-        if let Some(crop) = self.crop {
-            return Err(error(
-                ConfigFileErrorKind::Value,
-                format!(
-                    "this is a board's part of a rig (the rectangle at ({}, {}) of a {}x{} sensor), which a configuration file cannot hold: save the rig (brightpix rig plan --out) instead",
-                    crop.x, crop.y, crop.sensor_width, crop.sensor_height
-                ),
-            ));
-        }
         if let Err(e) = self.validate() {
             return Err(error(
                 ConfigFileErrorKind::Invalid(e),
@@ -87,6 +78,21 @@ impl ProcessingConfig {
             "bit_depth = {}  # bits per raw pixel\n",
             self.camera.bit_depth
         ));
+        if let Some(c) = self.crop {
+            t.push_str(
+                "\n# This camera is a rectangle of a larger sensor, which the board's camera\n\
+                 # interface crops (one board of a rig: brightpix rig plan). Everything else\n\
+                 # here is in the rectangle's pixels.\n[camera.crop]\n",
+            );
+            t.push_str(&format!(
+                "x = {}  # the rectangle's left column on the sensor, pixels\ny = {}  # its top row on the sensor, pixels\n",
+                c.x, c.y
+            ));
+            t.push_str(&format!(
+                "sensor_width = {}  # pixels\nsensor_height = {}  # pixels\n",
+                c.sensor_width, c.sensor_height
+            ));
+        }
 
         let grid = self
             .grid
@@ -299,6 +305,21 @@ mod tests {
         c.min_flux = 12345;
         let path = c.save(&dir, "tuned").unwrap();
         assert_eq!(ProcessingConfig::load(&path).unwrap(), c);
+        // The same as one board's part of a larger sensor: [camera.crop].
+        c.crop = Some(brightpix_protocol::Crop {
+            x: 8,
+            y: 20,
+            sensor_width: 64,
+            sensor_height: 40,
+        });
+        let path = c.save(&dir, "board").unwrap();
+        assert_eq!(ProcessingConfig::load(&path).unwrap(), c);
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(
+            text.contains("[camera.crop]\nx = 8") && text.contains("sensor_height = 40"),
+            "{text}"
+        );
+        c.crop = None;
         for side in [
             "tuned-background.npy",
             "tuned-gain.npy",

@@ -29,6 +29,17 @@ pub(super) struct FileCamera {
     pub width: u16,
     pub height: u16,
     pub bit_depth: u8,
+    pub crop: Option<FileCrop>,
+}
+
+/// `[camera.crop]`: where the camera lies on a larger sensor.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct FileCrop {
+    pub x: u16,
+    pub y: u16,
+    pub sensor_width: u16,
+    pub sensor_height: u16,
 }
 
 #[derive(Deserialize)]

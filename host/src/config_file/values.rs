@@ -4,7 +4,7 @@
 //! Python package). [`ProcessingConfig::from_values`](super::ProcessingConfig::from_values)
 //! converts it.
 
-use brightpix_protocol::{Camera, LevelFilter, SelectionRule, SubapertureWindow};
+use brightpix_protocol::{Camera, Crop, LevelFilter, SelectionRule, SubapertureWindow};
 use serde::Deserialize;
 
 use super::PixelCounts;
@@ -152,6 +152,8 @@ pub struct ConfigValues {
     /// `(n, 2)`: `[x, y]` in pixels per sub-aperture.
     pub reference_slopes: Option<ArrayValues>,
     pub min_flux_counts: Option<f64>,
+    /// Where `camera` lies on a larger sensor (`[camera.crop]`).
+    pub crop: Option<Crop>,
 }
 
 impl ConfigValues {
@@ -170,6 +172,7 @@ impl ConfigValues {
             level_filter: None,
             reference_slopes: None,
             min_flux_counts: None,
+            crop: None,
         }
     }
 }

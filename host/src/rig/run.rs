@@ -204,11 +204,15 @@ impl<'r> RigStream<'r> {
     }
 
     /// Captures `count` frames with every board's own camera at once (one
-    /// client each, in board order): the boards share one camera's bus, so
-    /// frame `k` of every board's capture is the camera's frame `k` (each
-    /// capture starts at the camera's frame 0; simulated cameras of one
-    /// seed make the same frames). `camera_frame(k)` gives the whole
-    /// camera's frame `k` for verification. A board that falls behind the
+    /// client each, in board order) and merges frame `k` of every board's
+    /// capture. That is one camera frame only if every board started
+    /// counting at the same camera frame: simulated cameras of one seed
+    /// begin their sequence at each capture's start, so they do; boards on
+    /// real hardware, each numbering frames from the first VSYNC after its
+    /// own `Capture`, need a common start or a frame counter the camera
+    /// embeds, which nothing provides yet (README, "Which frame is which,
+    /// today"). `camera_frame(k)` gives the whole camera's frame `k` for
+    /// verification. A board that falls behind the
     /// camera skips frames: they wait for it until its capture ends, then
     /// count as missing on its sub-apertures.
     pub fn capture(
