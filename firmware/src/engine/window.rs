@@ -40,8 +40,9 @@ const ENTRY: usize = core::mem::size_of::<Entry>();
 ///
 /// The open windows are kept in the engine's memory in order of first
 /// column, so the row kernel (`scan::row`) walks them one after the other.
-/// It reads and writes the fields before `buffer`, at the offsets `scan`'s
-/// assembly takes from `offset_of!`; the candidate buffer's two tiers are
+/// It reads and writes the fields before `buffer` (and, when it raises a
+/// window's admission itself, `low`, `floor` and `strict`: see
+/// `raise_floor`), at the offsets `scan`'s assembly takes from `offset_of!`; the candidate buffer's two tiers are
 /// kept as addresses (`front_end`, `back_start`) because that is what the
 /// kernel stores through, and everything else derives the tiers' lengths
 /// from them ([`OpenWindow::front`], [`OpenWindow::back`]).
@@ -78,6 +79,19 @@ pub struct OpenWindow {
     /// Bytes of room a segment can take (`8 width`): when less is left
     /// after a segment, the kernel stops at the window.
     pub(crate) room: u32,
+    /// When the front reaches `attention`, the kernel raises admission to
+    /// just above the hint itself instead of stopping, if this is not 0
+    /// (`subtract-next`, where reaching `attention` always proves the
+    /// cutoff at or above the hint: see `stream::admission::prepare_raise`):
+    /// the raw floor and lanes for `raise_admit` (`hint + 1`), set with the
+    /// admission. The kernel then writes `floor`, `lanes`, `admit`, `low`
+    /// (the hint), `strict`, `back_start` (`buffer_end`: the back tier
+    /// dropped) and `attention` (never again), as `raise_to_hint` would.
+    pub(crate) raise_floor: u32,
+    pub(crate) raise_lanes: u32,
+    pub(crate) raise_admit: i32,
+    /// The address after the candidate buffer's last entry.
+    pub(crate) buffer_end: usize,
 
     /// The candidate buffer's first entry.
     pub(crate) buffer: usize,
@@ -134,6 +148,10 @@ impl OpenWindow {
         back_start: 0,
         attention: 0,
         room: 0,
+        raise_floor: 0,
+        raise_lanes: 0,
+        raise_admit: 0,
+        buffer_end: 0,
         buffer: 0,
         capacity: 0,
         buffer_number: 0,

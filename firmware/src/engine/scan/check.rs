@@ -68,6 +68,7 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
             let floor = next(top + 2);
             let admit = next(16 * top) as i32 - (16 * top / 4) as i32;
             let hint = admit + next(16 * top / 2 + 1) as i32;
+            let raise_floor = if next(2) == 0 { 0 } else { 1 + next(top + 1) };
             let lanes = if floor == 0 || next(9) == 0 {
                 u32::MAX
             } else {
@@ -83,6 +84,12 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
                 w.hint = hint;
                 w.position_base = (k as u32) << 6;
                 w.room = 8 * width as u32;
+                // Half the windows raise admission in the kernel when the
+                // front reaches `attention`.
+                w.raise_floor = raise_floor;
+                w.raise_lanes = raise_floor.wrapping_sub(1).wrapping_mul(0x0001_0001);
+                w.raise_admit = hint + 1;
+                w.low = admit;
                 made = k + 1;
             }
             x += width + 2 * next(2) as u16;
@@ -107,6 +114,7 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
                 w.set_front(front.min(keep));
                 w.set_back(back.min(keep - front.min(keep)));
                 w.attention = start + attention * core::mem::size_of::<Entry>();
+                w.buffer_end = start + share * core::mem::size_of::<Entry>();
             }
         }
         for buffer in buffers.iter_mut() {
@@ -179,6 +187,30 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
                 k.buffer - buffers[0].as_ptr() as usize,
                 t.buffer - buffers[1].as_ptr() as usize,
             );
+            // What a raise in the kernel writes (`attention` relative to
+            // the buffer: the twin's and the kernel's buffers differ).
+            let raised = |w: &OpenWindow| {
+                (
+                    w.floor,
+                    w.lanes,
+                    w.admit,
+                    w.low,
+                    w.strict,
+                    if w.attention == usize::MAX {
+                        usize::MAX
+                    } else {
+                        w.attention - w.buffer
+                    },
+                )
+            };
+            if raised(k) != raised(t) {
+                return Err(KernelMismatch {
+                    what: "the row kernel raised admission unlike its twin",
+                    round,
+                    window: k.strict as usize | (t.strict as usize) << 1,
+                    entries: [Entry::ZERO; 2],
+                });
+            }
             if kb != tb || k.front() != t.front() || k.back() != t.back() {
                 return Err(KernelMismatch {
                     what: "the row kernel's tiers differ from its twin's",

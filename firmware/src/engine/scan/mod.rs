@@ -228,16 +228,35 @@ pub unsafe fn row_portable<S: Steps, const CHECK: bool>(args: &mut RowScan) -> R
             }
             window.front_end = front_end;
             window.back_start = back_start;
-            if passed
-                && (window.back_start - window.front_end < window.room as usize
-                    || window.front_end >= window.attention)
-            {
-                return RowStop::Attention(at);
+            if passed {
+                if window.back_start - window.front_end < window.room as usize {
+                    return RowStop::Attention(at);
+                }
+                if window.front_end >= window.attention {
+                    if window.raise_floor == 0 {
+                        return RowStop::Attention(at);
+                    }
+                    raise_admission(window);
+                }
             }
         }
         at += core::mem::size_of::<OpenWindow>();
     }
     RowStop::Done
+}
+
+/// The kernel's raise of a window's admission to just above its hint, as
+/// prepared by the engine (`OpenWindow::raise_floor`, not 0): the back tier
+/// dropped, `low` the hint, strict admission, no further attention.
+#[inline(always)]
+fn raise_admission(window: &mut OpenWindow) {
+    window.floor = window.raise_floor;
+    window.lanes = window.raise_lanes;
+    window.admit = window.raise_admit;
+    window.low = window.hint;
+    window.strict = true;
+    window.back_start = window.buffer_end;
+    window.attention = usize::MAX;
 }
 
 /// The pixels of `raw` (at most 64) above `lanes`' low half, as a bit

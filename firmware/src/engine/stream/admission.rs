@@ -7,7 +7,7 @@ use super::Engine;
 use crate::engine::calibrate::raw_floor;
 use crate::engine::select::{Buffer, Entry, Tiers, Ties, WindowRule};
 use crate::engine::window::OpenWindow;
-use brightpix_protocol::{Calibration, Config, SelectionRule};
+use brightpix_protocol::{Config, SelectionRule};
 
 impl Engine<'_, '_> {
     /// The row kernel stopped at window `k`: its candidates may now prove
@@ -75,7 +75,7 @@ pub(super) fn raise_to_hint(window: &mut OpenWindow, config: &Config<'_>, max_ra
             window.n,
             window.front() as u16 - window.at_hint,
         );
-        update_admission(window, &config.calibration, max_raw);
+        update_admission(window, config, max_raw);
     }
 }
 
@@ -111,17 +111,47 @@ pub(super) fn attention(window: &OpenWindow, rule: SelectionRule) -> usize {
 
 /// After `low`, `hint` or `strict` changed: the window's admission
 /// threshold, and the pre-filter's raw floor for it, lowered so that a pixel
-/// above `max_raw` always passes (see `OpenWindow::floor`), in both forms.
+/// above `max_raw` always passes (see `OpenWindow::floor`), in both forms;
+/// and what the row kernel needs to raise admission itself
+/// ([`prepare_raise`]).
 #[inline(always)]
-pub(super) fn update_admission(
-    window: &mut OpenWindow,
-    calibration: &Calibration<'_>,
-    max_raw: u16,
-) {
+pub(super) fn update_admission(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) {
+    let calibration = &config.calibration;
     window.admit = window.admission();
     let floor = raw_floor(calibration, window.bounds, window.admit).min(max_raw as u32 + 1);
     window.floor = floor;
     window.lanes = floor.wrapping_sub(1).wrapping_mul(0x0001_0001);
+    prepare_raise(window, config, max_raw);
+}
+
+/// For `subtract-next`, the row kernel raises admission to just above the
+/// hint when the front reaches `attention`, without stopping: there
+/// `front + hint ties > N` always holds ([`attention`]), which is
+/// [`Tiers::covers_hint`], and strict admission follows at once
+/// (`Tiers::hint_ties_settled`), so [`raise_to_hint`] would do exactly
+/// that: drop the back tier (so only while there are no low ties, which a
+/// compaction may have made), set `low` to the hint, admit `p > hint`.
+/// The copies of the hint in the front are then counted later, when
+/// something needs them (`settle_at_hint`): admission being strict, no
+/// copy arrives after the raise. Not for a raised floor of 0 (every pixel
+/// passes: the general path's), nor for the other rules, whose stop the
+/// engine takes (`Engine::attend`).
+#[inline(always)]
+fn prepare_raise(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) {
+    let raise = config.selection.rule == SelectionRule::SubtractNext
+        && !window.strict
+        && window.low_ties.count == 0
+        && window.capacity > 0;
+    let (admit, floor) = if raise {
+        let admit = window.hint.saturating_add(1);
+        let floor = raw_floor(&config.calibration, window.bounds, admit).min(max_raw as u32 + 1);
+        (admit, floor)
+    } else {
+        (0, 0)
+    };
+    window.raise_admit = admit;
+    window.raise_floor = floor;
+    window.raise_lanes = floor.wrapping_sub(1).wrapping_mul(0x0001_0001);
 }
 
 /// [`Tiers::covers_hint`] for an open window: its front holds the pixels

@@ -134,6 +134,14 @@ pub struct Engine<'c, 'm> {
     column: u16,
     /// Next window (in `memory.order`) to open.
     next_to_open: usize,
+    /// The next row at which `end_row` has more to do than advance: the
+    /// first row of the next window to open, or the camera's height (the
+    /// frame's end). Kept so that a row tests one field.
+    event_row: u16,
+    /// Which instance of `push_with` a push takes (the calibration steps
+    /// and the range check, bits as in [`variant`]): decided once per
+    /// configuration, so that a push is one indexed jump.
+    variant: u8,
     /// Open windows: `memory.open[..open_len]`, by first column.
     open_len: usize,
     free_len: usize,
@@ -212,6 +220,8 @@ impl<'c, 'm> Engine<'c, 'm> {
             row: 0,
             column: 0,
             next_to_open: 0,
+            event_row: 0,
+            variant: variant(&config),
             open_len: 0,
             // Not the open windows' count: `start_frame` lists the free
             // buffers afresh.
@@ -311,30 +321,28 @@ impl<'c, 'm> Engine<'c, 'm> {
     /// is whole in the chunk from its first pixel on is not copied to the
     /// row history: a window rescanned reads its rows in the chunk.
     pub fn push(&mut self, pixels: &[u16], sink: &mut impl OutputSink) -> Result<(), FrameError> {
-        let c = self.config.calibration;
-        let check = self.max_raw != u16::MAX;
         macro_rules! with {
-            ($b:literal, $g:literal, $t:literal) => {
-                if check {
-                    self.push_with::<With<$b, $g, $t>, true>(pixels, sink)
-                } else {
-                    self.push_with::<With<$b, $g, $t>, false>(pixels, sink)
-                }
+            ($b:literal, $g:literal, $t:literal, $c:literal) => {
+                self.push_with::<With<$b, $g, $t>, $c>(pixels, sink)
             };
         }
-        match (
-            c.background.is_some(),
-            c.gain.is_some(),
-            c.threshold.is_some(),
-        ) {
-            (false, false, false) => with!(false, false, false),
-            (false, false, true) => with!(false, false, true),
-            (true, false, false) => with!(true, false, false),
-            (true, false, true) => with!(true, false, true),
-            (false, true, false) => with!(false, true, false),
-            (false, true, true) => with!(false, true, true),
-            (true, true, false) => with!(true, true, false),
-            (true, true, true) => with!(true, true, true),
+        match self.variant {
+            0 => with!(false, false, false, false),
+            1 => with!(true, false, false, false),
+            2 => with!(false, true, false, false),
+            3 => with!(true, true, false, false),
+            4 => with!(false, false, true, false),
+            5 => with!(true, false, true, false),
+            6 => with!(false, true, true, false),
+            7 => with!(true, true, true, false),
+            8 => with!(false, false, false, true),
+            9 => with!(true, false, false, true),
+            10 => with!(false, true, false, true),
+            11 => with!(true, true, false, true),
+            12 => with!(false, false, true, true),
+            13 => with!(true, false, true, true),
+            14 => with!(false, true, true, true),
+            _ => with!(true, true, true, true),
         }
     }
 
@@ -345,25 +353,40 @@ impl<'c, 'm> Engine<'c, 'm> {
         mut pixels: &[u16],
         sink: &mut impl OutputSink,
     ) -> Result<(), FrameError> {
-        let width = self.config.camera.width;
+        let width = self.config.camera.width as usize;
         while !pixels.is_empty() {
-            // A frame's first row opens its windows here, when its first
-            // pixel arrives (`start_frame` does not), so that the work after
-            // a frame's last pixel is only its results; the other rows open
-            // theirs at the end of the row before (`end_row`).
-            if self.row == 0 && self.column == 0 && self.next_to_open == 0 {
-                // The frame before ran the row kernel if it set `scan.row`.
-                if self.scan.row != 0 {
-                    self.count_kernel_frame();
+            if self.column == 0 {
+                // A frame's first row opens its windows here, when its
+                // first pixel arrives (`start_frame` does not), so that the
+                // work after a frame's last pixel is only its results; the
+                // other rows open theirs at the end of the row before
+                // (`end_row`).
+                if self.row == 0 && self.next_to_open == 0 {
+                    // The frame before ran the row kernel if it set
+                    // `scan.row`.
+                    if self.scan.row != 0 {
+                        self.count_kernel_frame();
+                    }
+                    let frame = width * self.config.camera.height as usize;
+                    if pixels.len() >= frame {
+                        self.whole_frame = pixels.as_ptr() as usize;
+                        self.ring_rows = 0;
+                    }
+                    self.open_windows_of_row();
                 }
-                let frame = width as usize * self.config.camera.height as usize;
-                if pixels.len() >= frame {
-                    self.whole_frame = pixels.as_ptr() as usize;
-                    self.ring_rows = 0;
+                // A whole row: the usual case, kept short.
+                if pixels.len() >= width {
+                    let (row, rest) = pixels.split_at(width);
+                    self.keep_row(row);
+                    if let Err(bad) = self.push_whole_row::<S, CHECK>(row, sink) {
+                        return Err(self.out_of_range(row, bad));
+                    }
+                    self.end_row(sink);
+                    pixels = rest;
+                    continue;
                 }
-                self.open_windows_of_row();
             }
-            let take = pixels.len().min((width - self.column) as usize);
+            let take = pixels.len().min(width - self.column as usize);
             let (part, rest) = pixels.split_at(take);
             if self.ring_rows > 0 {
                 let at = self.history_row + self.column as usize;
@@ -372,22 +395,11 @@ impl<'c, 'm> Engine<'c, 'm> {
                 let to = unsafe { self.memory.history.get_unchecked_mut(at..at + take) };
                 copy_pixels(part, to);
             }
-            let pushed = if take == width as usize {
-                self.push_whole_row::<S, CHECK>(part, sink)
-            } else {
-                self.push_row_part::<S, CHECK>(part, sink)
-            };
-            if let Err(bad) = pushed {
-                let error = FrameError::PixelOutOfRange {
-                    row: self.row,
-                    column: self.column + bad as u16,
-                    value: part[bad],
-                };
-                self.start_frame();
-                return Err(error);
+            if let Err(bad) = self.push_row_part::<S, CHECK>(part, sink) {
+                return Err(self.out_of_range(part, bad));
             }
             self.column += take as u16;
-            if self.column == width {
+            if self.column as usize == width {
                 self.end_row(sink);
             }
             pixels = rest;
@@ -403,7 +415,65 @@ impl<'c, 'm> Engine<'c, 'm> {
         self.scan.row = 0;
     }
 
+    /// A whole row (from column 0) copied to the row history, if one is
+    /// kept for this frame.
+    #[inline(always)]
+    fn keep_row(&mut self, row: &[u16]) {
+        if self.ring_rows > 0 {
+            let at = self.history_row;
+            // SAFETY: the ring holds `history_rows` camera rows (plan) and
+            // `history_row` is the first pixel of one of them.
+            let to = unsafe { self.memory.history.get_unchecked_mut(at..at + row.len()) };
+            copy_row(row, to);
+        }
+    }
+
+    /// The pixel at offset `bad` of `part` (pixels from the current
+    /// column) is above the bit depth: the frame is abandoned.
+    #[cold]
+    #[inline(never)]
+    fn out_of_range(&mut self, part: &[u16], bad: usize) -> FrameError {
+        let error = FrameError::PixelOutOfRange {
+            row: self.row,
+            column: self.column + bad as u16,
+            value: part[bad],
+        };
+        self.start_frame();
+        error
+    }
+
+    /// The current row is complete: on to the next one. Most rows only
+    /// advance; the rows where windows close or open, and the frame's
+    /// last, take [`row_events`](Self::row_events).
+    #[inline(always)]
     fn end_row(&mut self, sink: &mut impl OutputSink) {
+        self.cursor = 0;
+        self.column = 0;
+        self.row += 1;
+        let width = self.config.camera.width as usize;
+        if self.bg_row != 0 {
+            self.bg_row += 4 * width;
+        }
+        if self.scan.gain_row != 0 {
+            self.scan.gain_row += 2 * width;
+        }
+        self.position_row += 1 << 6;
+        if self.ring_rows > 0 {
+            self.history_row += width;
+            if self.history_row == self.history_rows * width {
+                self.history_row = 0;
+            }
+        }
+        if self.finished_in_row || self.row == self.event_row {
+            self.row_events(sink);
+        }
+    }
+
+    /// What [`end_row`](Self::end_row) leaves to the rows where windows
+    /// closed (in the row just ended) or open (in the new current row), and
+    /// to a frame's end.
+    #[inline(never)]
+    fn row_events(&mut self, sink: &mut impl OutputSink) {
         let mut layout_changed = false;
         if self.finished_in_row {
             // Close finished windows, keeping the others in column order.
@@ -427,23 +497,6 @@ impl<'c, 'm> Engine<'c, 'm> {
             self.open_len = kept;
             self.finished_in_row = false;
             layout_changed = true;
-        }
-        self.cursor = 0;
-        self.column = 0;
-        self.row += 1;
-        let width = self.config.camera.width as usize;
-        if self.bg_row != 0 {
-            self.bg_row += 4 * width;
-        }
-        if self.scan.gain_row != 0 {
-            self.scan.gain_row += 2 * width;
-        }
-        self.position_row += 1 << 6;
-        if self.ring_rows > 0 {
-            self.history_row += width;
-            if self.history_row == self.history_rows * width {
-                self.history_row = 0;
-            }
         }
         if self.row == self.config.camera.height {
             self.frames = self.frames.wrapping_add(1);
@@ -482,9 +535,41 @@ impl<'c, 'm> Engine<'c, 'm> {
         self.scan.gain_row = c.gain.map_or(0, |g| g.as_ptr() as usize);
         self.position_row = 0;
         self.next_to_open = 0;
+        self.update_event_row();
         self.update_layout();
         // The first row's windows open in `push_with`.
     }
+}
+
+/// [`copy_pixels`] for a whole row: the row and its place in the history are
+/// both word-aligned when the camera's width is even and the caller's row
+/// is (the usual case), and are then copied as words with no ends to mind.
+#[inline(always)]
+fn copy_row(from: &[u16], to: &mut [u16]) {
+    let n = from.len().min(to.len());
+    if (from.as_ptr() as usize | to.as_ptr() as usize) & 3 == 0 && n.is_multiple_of(2) {
+        // SAFETY: both aligned to 4 and `n` (even) pixels long; any bits
+        // are a u32 and a pair of u16.
+        let (fw, tw) = unsafe {
+            (
+                core::slice::from_raw_parts(from.as_ptr() as *const u32, n / 2),
+                core::slice::from_raw_parts_mut(to.as_mut_ptr() as *mut u32, n / 2),
+            )
+        };
+        prefilter::copy_words(fw, tw);
+    } else {
+        copy_pixels(from, to);
+    }
+}
+
+/// `Engine::variant` for `config`: bit 0 a background map, 1 a gain map, 2
+/// a fixed threshold, 3 pixels checked against a bit depth below 16.
+fn variant(config: &Config<'_>) -> u8 {
+    let c = &config.calibration;
+    c.background.is_some() as u8
+        | (c.gain.is_some() as u8) << 1
+        | (c.threshold.is_some() as u8) << 2
+        | ((config.camera.max_raw() != u16::MAX) as u8) << 3
 }
 
 /// `to.copy_from_slice(from)`, eight pixels at a time when both are

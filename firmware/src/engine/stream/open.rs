@@ -18,6 +18,17 @@ impl Engine<'_, '_> {
             .get(self.next_to_open)
             .is_some_and(|&index| windows[index as usize].y == self.row)
     }
+    /// `event_row` after `next_to_open` changed: the next window's first
+    /// row, or the frame's end.
+    pub(super) fn update_event_row(&mut self) {
+        let windows = self.config.windows;
+        self.event_row = self.memory.order[..windows.len()]
+            .get(self.next_to_open)
+            .map_or(self.config.camera.height, |&index| {
+                windows[index as usize].y
+            });
+    }
+
     /// Opens the windows whose first row is the current row.
     pub(super) fn open_windows_of_row(&mut self) {
         let windows = self.config.windows;
@@ -68,6 +79,10 @@ impl Engine<'_, '_> {
                 back_start,
                 attention: window_attention,
                 room,
+                raise_floor,
+                raise_lanes,
+                raise_admit,
+                buffer_end,
                 buffer: window_buffer,
                 capacity: window_capacity,
                 buffer_number,
@@ -103,6 +118,10 @@ impl Engine<'_, '_> {
             *back_start = buffer + capacity as usize * core::mem::size_of::<Entry>();
             *window_attention = usize::MAX;
             *room = 8 * w.width as u32;
+            *raise_floor = 0;
+            *raise_lanes = 0;
+            *raise_admit = 0;
+            *buffer_end = buffer + capacity as usize * core::mem::size_of::<Entry>();
             *window_buffer = buffer;
             *window_capacity = capacity;
             *buffer_number = number;
@@ -129,13 +148,14 @@ impl Engine<'_, '_> {
             // `segment_rest`).
             let window = &mut open[k];
             if capacity > 0 {
-                update_admission(window, &self.config.calibration, self.max_raw);
+                update_admission(window, &self.config, self.max_raw);
                 window.attention = attention(window, self.config.selection.rule);
             }
             if !window.update_kernel_segment() {
                 self.not_ready += 1;
             }
         }
+        self.update_event_row();
         self.update_layout();
     }
 

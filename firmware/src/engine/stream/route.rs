@@ -30,6 +30,17 @@ impl Engine<'_, '_> {
             return self.push_whole_row_general::<S, CHECK>(row_pixels, sink);
         }
         let row = self.row;
+        if self.not_ready == 0 {
+            // Every open window is kernel-ready: one kernel pass.
+            if let Some((window, pixel)) = self.kernel_run_all::<S, CHECK>(row_address) {
+                self.finish_before(window, sink);
+                return Err((pixel - row_address) / 2);
+            }
+            if row == self.next_last_row {
+                self.finish_last_row(sink);
+            }
+            return Ok(());
+        }
         let mut k = 0;
         while k < self.open_len {
             let ready = |w: &OpenWindow| w.segment_start != w.segment_end;
@@ -62,13 +73,52 @@ impl Engine<'_, '_> {
             k = end;
         }
         if row == self.next_last_row {
-            for k in 0..self.open_len {
-                if self.memory.open[k].last_row == row {
-                    self.finish(k, sink);
-                }
-            }
+            self.finish_last_row(sink);
         }
         Ok(())
+    }
+
+    /// The windows whose last row is the current row, finished.
+    #[inline(always)]
+    fn finish_last_row(&mut self, sink: &mut impl OutputSink) {
+        for k in 0..self.open_len {
+            if self.memory.open[k].last_row == self.row {
+                self.finish(k, sink);
+            }
+        }
+    }
+
+    /// [`kernel_run`](Self::kernel_run) over every open window: the
+    /// kernel's window range is already theirs (`update_layout`).
+    #[inline(always)]
+    fn kernel_run_all<S: Steps, const CHECK: bool>(
+        &mut self,
+        row_address: usize,
+    ) -> Option<(usize, usize)> {
+        const SIZE: usize = core::mem::size_of::<OpenWindow>();
+        self.scan.row = row_address;
+        self.scan.bg_delta = self.bg_row.wrapping_sub(2 * row_address).wrapping_sub(16);
+        self.scan.position_delta = self
+            .position_row
+            .wrapping_sub(4)
+            .wrapping_sub((row_address >> 1) as u32);
+        let first = self.scan.first;
+        let stopped = loop {
+            // SAFETY: every open window is kernel-ready and its segment
+            // lies in the row the caller holds.
+            match unsafe { scan::row::<S, CHECK>(&mut self.scan) } {
+                RowStop::Done => break None,
+                RowStop::Attention(address) => {
+                    self.attend((address - first) / SIZE);
+                    self.scan.first = address + SIZE;
+                }
+                RowStop::OutOfRange { window, pixel } => {
+                    break Some(((window - first) / SIZE, pixel))
+                }
+            }
+        };
+        self.scan.first = first;
+        stopped
     }
 
     /// The row kernel over the open windows `k .. end` (all
@@ -379,7 +429,7 @@ impl Engine<'_, '_> {
                     Ok(())
                 };
             }
-            update_admission(window, &self.config.calibration, max_raw);
+            update_admission(window, &self.config, max_raw);
             place(window, entry);
             start = k + 1;
         };
