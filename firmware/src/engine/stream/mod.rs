@@ -91,7 +91,8 @@ pub struct EngineStats {
     /// Windows computed again from the row history.
     pub rescans: u32,
     /// Times the row kernel stopped at a window for the engine's
-    /// attention (`Engine::attend`).
+    /// attention (`Engine::attend`). Not the raises to the hint the kernel
+    /// does itself (`subtract-next`, see `OpenWindow::raise_floor`).
     pub attentions: u32,
     /// Frames in which the row kernel (`scan::row`, the assembly routine
     /// on Cortex-M) ran at least once, whole or abandoned, the frame in
