@@ -248,6 +248,20 @@ fn host_messages(payload: &[u8]) -> Vec<(&'static str, HostMessage<'_>)> {
         ),
         ("capture 1000 frames", HostMessage::Capture { frames: 1000 }),
         ("", HostMessage::StopCapture),
+        (
+            "every workload the board has, each its own count of frames",
+            HostMessage::Bench {
+                workload: "all",
+                frames: 0,
+            },
+        ),
+        (
+            "one workload, 16 frames",
+            HostMessage::Bench {
+                workload: "canary-subtract-next-n20",
+                frames: 16,
+            },
+        ),
     ]);
     all
 }
@@ -486,8 +500,81 @@ fn device_messages() -> Vec<(&'static str, DeviceMessage<'static>)> {
         Ack::LevelFiltersReset,
         Ack::CaptureStarted { frames: 0 },
         Ack::CaptureStopped { frames: 100 },
+        Ack::BenchDone { workloads: 20 },
     ] {
         all.push(("", DeviceMessage::Ack(ack)));
+    }
+    let spread = |min, median, max| Spread { min, median, max };
+    all.push((
+        "CANARY on the STM32H743 at 400 MHz: 8 frames of 12,544 pixels in DWT cycles",
+        DeviceMessage::BenchReport(BenchReport {
+            workload: "canary-subtract-next-n20",
+            unit: CountUnit::Cycles,
+            clock_hz: Some(400_000_000),
+            pixels: 12_544,
+            frames: 8,
+            result: BenchResult::Measured(BenchFigures {
+                engine_total: 1_300_000,
+                engine_frame: spread(160_000, 162_000, 168_000),
+                engine_last_row: spread(7_000, 7_400, 9_100),
+                floor_total: 450_000,
+                floor_frame: spread(55_000, 56_000, 58_000),
+                floor_last_row: spread(1_500, 1_600, 1_700),
+                floor_check: FloorCheck::Equal,
+            }),
+        }),
+    ));
+    all.push((
+        "the QEMU board under -icount: instructions, another rule",
+        DeviceMessage::BenchReport(BenchReport {
+            workload: "canary-threshold-n20",
+            unit: CountUnit::Instructions,
+            clock_hz: None,
+            pixels: 12_544,
+            frames: 1,
+            result: BenchResult::Measured(BenchFigures {
+                engine_total: 200_000,
+                engine_frame: spread(200_000, 200_000, 200_000),
+                engine_last_row: spread(8_000, 8_000, 8_000),
+                floor_total: 69_000,
+                floor_frame: spread(69_000, 69_000, 69_000),
+                floor_last_row: spread(1_765, 1_765, 1_765),
+                floor_check: FloorCheck::NotComparable,
+            }),
+        }),
+    ));
+    for (unit, result) in [
+        (
+            CountUnit::Uncounted,
+            BenchResult::DoesNotFit {
+                limit: BenchLimit::Pixels,
+            },
+        ),
+        (
+            CountUnit::Cycles,
+            BenchResult::DoesNotFit {
+                limit: BenchLimit::Windows,
+            },
+        ),
+        (
+            CountUnit::Cycles,
+            BenchResult::DoesNotFit {
+                limit: BenchLimit::EngineMemory,
+            },
+        ),
+        (CountUnit::Cycles, BenchResult::SlopesDiffer { window: 17 }),
+    ] {
+        all.push((
+            "",
+            DeviceMessage::BenchReport(BenchReport {
+                workload: "elt-800-10x10-n20",
+                unit,
+                clock_hz: None,
+                pixels: 640_000,
+                frames: 1,
+                result,
+            }),
+        ));
     }
     let errors = [
         DeviceError::Decode,
@@ -561,6 +648,14 @@ fn device_messages() -> Vec<(&'static str, DeviceMessage<'static>)> {
             height: 2048,
             max: 2048,
         }),
+        DeviceError::Bench(BenchFault::NotSupported),
+        DeviceError::Bench(BenchFault::Streaming),
+        DeviceError::Bench(BenchFault::UploadInProgress),
+        DeviceError::Bench(BenchFault::UnknownWorkload),
+        DeviceError::Bench(BenchFault::TooManyFrames { max: 64 }),
+        DeviceError::Unexpected {
+            message: MessageKind::Bench,
+        },
     ];
     for e in errors {
         all.push(("", DeviceMessage::Error(e)));
@@ -793,12 +888,14 @@ fn every_vector_decodes_to_its_message() {
         "PixelRows",
         "Capture",
         "StopCapture",
+        "Bench",
         "HelloReply",
         "Ack",
         "Error",
         "Status",
         "Slopes",
         "FrameDone",
+        "BenchReport",
     ] {
         assert!(
             names.iter().any(|n| n.split('.').next() == Some(name)),

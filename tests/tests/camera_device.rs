@@ -63,6 +63,7 @@ impl HostSide for Link {
                         Reply::Slopes(frame, results.to_vec())
                     }
                     DeviceMessage::FrameDone { frame, count } => Reply::FrameDone(frame, count),
+                    DeviceMessage::BenchReport(r) => panic!("a bench report: {r:?}"),
                 });
             }
         }

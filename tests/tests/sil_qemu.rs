@@ -445,3 +445,159 @@ fn rig_capture_of_three_boards_cropping_one_camera_in_qemu() {
         v.mismatches
     );
 }
+
+/// The board's bench mode, the whole path: `brightpix bench --port` (the
+/// CLI's function) against the QEMU board under `-icount shift=6`, on the
+/// CANARY workload. The board counts instructions with the QEMU bench's
+/// meter on the same generated frames, so its figures must be the QEMU
+/// bench's (`run-bench m4 --only ...`, run here too) within a small band:
+/// not bit for bit, because the board's copy of the measuring code is
+/// generic over the counter and linked into the device, which moves the
+/// code around the timed calls by a few instructions a row. What must hold
+/// exactly: the floor's slopes equal the engine's on every frame (checked
+/// on the board), the counts are instructions and consistent, and the
+/// device's configuration survives the bench: same digest, and frames
+/// streamed afterwards are bit-exact without configuring again.
+#[test]
+fn bench_port_counts_instructions_and_keeps_the_configuration() {
+    use brightpix::cli::bench_port::{self, PortBench};
+    use brightpix_protocol::wire::{BenchFault, BenchResult, CountUnit, DeviceError, FloorCheck};
+
+    const WORKLOAD: &str = "canary-subtract-next-n20";
+    let mut device = QemuDevice::launch(QemuOptions {
+        elf: Some(elf()),
+        pixels_fifo: true,
+        icount: Some(6),
+        ..QemuOptions::default()
+    })
+    .unwrap_or_else(|e| panic!("{e:#}"));
+    device.release_fifo(Duration::from_secs(10)).unwrap();
+    let case = canary_case();
+    let digest = {
+        let mut client = connect(&device);
+        run_case(&mut client, &case);
+        // Refusals change nothing.
+        let refused = |r: Result<_, brightpix::link::LinkError>| match r {
+            Err(brightpix::link::LinkError::Device {
+                error: DeviceError::Bench(fault),
+                ..
+            }) => fault,
+            other => panic!("expected a refusal, got {other:?}"),
+        };
+        let long = Duration::from_secs(60);
+        assert_eq!(
+            refused(client.bench("no-such-workload", 0, long, |_| {})),
+            BenchFault::UnknownWorkload
+        );
+        assert_eq!(
+            refused(client.bench(WORKLOAD, 65, long, |_| {})),
+            BenchFault::TooManyFrames { max: 64 }
+        );
+        client.status().unwrap().config_digest
+    };
+    assert!(digest.is_some());
+
+    let dir = brightpix::sim_device::temp_dir("brightpix-bench-port").unwrap();
+    let json_path = dir.join("bench.json");
+    let rows = bench_port::run(&PortBench {
+        port: device.port(),
+        workload: Some(WORKLOAD),
+        frames: 0,
+        json: Some(&json_path),
+        per_workload: Duration::from_secs(120),
+    })
+    .unwrap_or_else(|e| panic!("bench --port: {e:#}"));
+    check_alive(&mut device);
+    assert_eq!(rows.len(), 1);
+    let row = &rows[0];
+    assert_eq!(row.workload, WORKLOAD);
+    assert_eq!(row.unit, CountUnit::Instructions, "QEMU runs with -icount");
+    assert_eq!((row.pixels, row.frames), (112 * 112, 8));
+    let BenchResult::Measured(f) = row.result else {
+        panic!("not measured: {row:?}");
+    };
+    assert_eq!(f.floor_check, FloorCheck::Equal);
+    for (name, s, total) in [
+        ("engine", f.engine_frame, f.engine_total),
+        ("floor", f.floor_frame, f.floor_total),
+    ] {
+        assert!(s.min > 0 && s.min <= s.median && s.median <= s.max, "{name}: {s:?}");
+        let frames = row.frames as u64;
+        assert!(
+            s.min * frames <= total + frames && total <= s.max * frames + frames,
+            "{name}: total {total} outside the frames' {s:?}"
+        );
+    }
+    assert!(f.engine_last_row.median > 0 && f.engine_last_row.median < f.engine_frame.min);
+    let (engine, floor) = (
+        bench_port::per_pixel(row, f.engine_total),
+        bench_port::per_pixel(row, f.floor_total),
+    );
+    assert!(engine > floor && engine / floor < 6.0, "{engine} vs {floor}");
+
+    // The QEMU bench on the same workload and core.
+    let repo = brightpix::bench::qemu::repository_root().expect("the repository");
+    let qemu = brightpix::bench::qemu::run(
+        &repo,
+        brightpix::bench::qemu::QemuCore::M4,
+        &["--only".into(), WORKLOAD.into()],
+    )
+    .unwrap_or_else(|e| panic!("the QEMU bench: {e}"));
+    let q = qemu.rows.iter().find(|r| r.workload == WORKLOAD).unwrap();
+    let near = |a: f64, b: f64, band: f64| (a - b).abs() <= band * b;
+    eprintln!(
+        "  board: engine {engine:.3} instr/px, floor {floor:.3}, last row {}; QEMU bench: {:.3}, {:.3}, {:.0}",
+        f.engine_last_row.median,
+        q.instr_per_px,
+        q.floor_instr_per_px.unwrap(),
+        q.last_row_instructions
+    );
+    assert!(near(engine, q.instr_per_px, 0.02), "engine {engine} vs {}", q.instr_per_px);
+    assert!(
+        near(floor, q.floor_instr_per_px.unwrap(), 0.03),
+        "floor {floor} vs {:?}",
+        q.floor_instr_per_px
+    );
+    assert!(
+        near(f.engine_last_row.median as f64, q.last_row_instructions, 0.15),
+        "last row {:?} vs {}",
+        f.engine_last_row,
+        q.last_row_instructions
+    );
+
+    // The JSON the CLI wrote.
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json_path).unwrap()).unwrap();
+    assert_eq!(json["board"], "qemu-mps2-an386");
+    let w = &json["workloads"][0];
+    for key in [
+        "workload",
+        "unit",
+        "pixels",
+        "frames",
+        "engine_per_px",
+        "floor_per_px",
+        "x_floor",
+        "engine_frame",
+        "engine_last_row",
+        "floor_frame",
+        "floor_last_row",
+        "floor_check",
+    ] {
+        assert!(!w[key].is_null(), "{key} missing in {w}");
+    }
+    assert_eq!(w["unit"], "instructions");
+    assert!(w["mpx_per_s"].is_null(), "no Mpx/s from instructions");
+    assert_eq!(json["config_digest"], serde_json::json!(digest));
+
+    // The configuration is intact: same digest, and streaming without
+    // configuring again is bit-exact.
+    let mut client = connect(&device);
+    assert_eq!(client.status().unwrap().config_digest, digest);
+    let view = case.config.view();
+    let run = brightpix::sil::stream_and_verify(&mut client, &view, &case.frames[..20], 500, 5);
+    assert!(run.error.is_none(), "{:?}", run.error);
+    assert!(run.verifier.all_match() && run.verifier.frames_verified == 20);
+    check_alive(&mut device);
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -41,6 +41,7 @@
 //! configuration's upload into the staging slot; in `pixels`, frames into
 //! the engine and results back.
 
+pub mod bench;
 mod fmt;
 mod pixels;
 pub mod source;
@@ -52,17 +53,20 @@ pub mod watchdog;
 use core::convert::Infallible;
 
 use brightpix_protocol::wire::{
-    decode_body, encode, hello_in_body, unstuff, Ack, Capabilities, DeviceError, DeviceMessage,
-    FrameFault, FrameReader, Health, Hello, HelloReply, HostMessage, MessageKind, PixelSourceKind,
-    Received, ResetReason, Status, WireError, MAX_BOARD_NAME_LEN, MAX_FRAME_LEN,
+    decode_body, encode, hello_in_body, unstuff, Ack, BenchFault, Capabilities, DeviceError,
+    DeviceMessage, FrameFault, FrameReader, Health, Hello, HelloReply, HostMessage, MessageKind,
+    PixelSourceKind, Received, ResetReason, Status, WireError, ALL_WORKLOADS, MAX_BOARD_NAME_LEN,
+    MAX_FRAME_LEN,
 };
 use embassy_futures::select::{select, select3, Either, Either3};
 use embedded_io_async::{Read, Write};
 
 use crate::engine::{Engine, EngineMemory, EngineStats, OutputSink, SubapertureResult};
+use bench::BenchPlan;
 use fmt::{log_debug, log_info, log_warn};
 use upload::Upload;
 
+pub use bench::{BenchMemory, BenchRunner};
 pub use embedded_io_async;
 pub use source::{CameraRefused, LinkOnly, PixelRowsStream, PixelRun, PixelSource};
 pub use storage::{ConfigSlot, DeviceBuffers, DeviceStorage, SlotStorage};
@@ -122,6 +126,10 @@ struct Core<'d, T, W> {
     engine_seen: EngineStats,
     /// Reads the board's health for `Status.health`.
     health: fn() -> Health,
+    /// The board's bench mode, if it has one.
+    bench: Option<&'d mut dyn BenchRunner>,
+    /// A bench used the engine's memory: build the engine afresh.
+    fresh_engine: bool,
 }
 
 struct Applying {
@@ -149,6 +157,8 @@ enum Next {
     Continue,
     /// The active configuration changed: rebuild the engine.
     Rebuild,
+    /// Run a bench (the engine is dropped first, and built afresh after).
+    Bench(BenchPlan),
 }
 
 type LinkResult<T, E> = Result<T, LinkError<E>>;
@@ -219,6 +229,8 @@ impl<'d, T: Read + Write, C: PixelSource> Device<'d, T, C, NoWatchdog> {
                 counters: Status::default(),
                 engine_seen: EngineStats::default(),
                 health: Health::default,
+                bench: None,
+                fresh_engine: false,
             },
         }
     }
@@ -261,6 +273,8 @@ impl<'d, T: Read + Write, C: PixelSource> Device<'d, T, C, NoWatchdog> {
                 counters,
                 engine_seen: core.engine_seen,
                 health: core.health,
+                bench: core.bench,
+                fresh_engine: core.fresh_engine,
             },
         }
     }
@@ -277,6 +291,12 @@ impl<'d, T: Read + Write, C: PixelSource, W: Watchdog> Device<'d, T, C, W> {
     /// `StatusRequest`. Without it every part is `None`: not read.
     pub fn set_health(&mut self, read: fn() -> Health) {
         self.core.health = read;
+    }
+
+    /// The board's bench mode (the `Bench` request); without it the device
+    /// answers `Error(Bench(NotSupported))`.
+    pub fn set_bench(&mut self, runner: &'d mut dyn BenchRunner) {
+        self.core.bench = Some(runner);
     }
 
     /// The watchdog (e.g. to feed it while the board waits for a link).
@@ -329,9 +349,11 @@ impl<'d, T: Read + Write, C: PixelSource, W: Watchdog> Device<'d, T, C, W> {
             let mut engine = None;
             if let Some(config) = active.config() {
                 let memory = reborrow(memory);
-                let built = match core.applying {
-                    Some(_) => Engine::new(config, memory),
-                    None => Engine::resume(config, memory),
+                let fresh = core.applying.is_some() || core::mem::take(&mut core.fresh_engine);
+                let built = if fresh {
+                    Engine::new(config, memory)
+                } else {
+                    Engine::resume(config, memory)
                 };
                 match built {
                     Ok(e) => {
@@ -377,7 +399,9 @@ impl<'d, T: Read + Write, C: PixelSource, W: Watchdog> Device<'d, T, C, W> {
             if let Some(engine) = &engine {
                 core.fold_engine(engine);
             }
-            served?;
+            if let Some(plan) = served? {
+                core.bench(plan, memory, staging).await?;
+            }
         }
     }
 }
@@ -414,14 +438,15 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
         );
     }
 
-    /// Handles frames and pixels until the active configuration changes.
+    /// Handles frames and pixels until the active configuration changes
+    /// (`None`) or a bench needs the engine's memory.
     async fn serve<C: PixelSource>(
         &mut self,
         rx: &mut FrameReader<&mut [u8]>,
         source: &mut C,
         engine: &mut Option<Engine<'_, '_>>,
         staging: &mut ConfigSlot<'_>,
-    ) -> LinkResult<(), T::Error> {
+    ) -> LinkResult<Option<BenchPlan>, T::Error> {
         loop {
             // Alive: every pass of the loop feeds the watchdog.
             self.watchdog.feed();
@@ -458,8 +483,10 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
                     self.send_error(DeviceError::Decode).await?;
                     continue;
                 };
-                if self.handle(message, source, engine, staging).await? == Next::Rebuild {
-                    return Ok(());
+                match self.handle(message, source, engine, staging).await? {
+                    Next::Continue => {}
+                    Next::Rebuild => return Ok(None),
+                    Next::Bench(plan) => return Ok(Some(plan)),
                 }
             }
             self.flush_link().await?;
@@ -637,6 +664,10 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
                     }
                 }
             }
+            HostMessage::Bench { workload, frames } => match self.check_bench(workload, frames) {
+                Ok(plan) => return Ok(Next::Bench(plan)),
+                Err(e) => Err(DeviceError::Bench(e)),
+            },
             HostMessage::StopCapture => {
                 let frames = match self.capture.take() {
                     Some(capture) => {
@@ -685,6 +716,81 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
                 upload.id
             );
         }
+    }
+
+    /// A bench request, checked before anything changes.
+    fn check_bench(&self, workload: &str, frames: u32) -> Result<BenchPlan, BenchFault> {
+        let Some(runner) = self.bench.as_deref() else {
+            return Err(BenchFault::NotSupported);
+        };
+        if self.frame.is_some() || self.capture.is_some() {
+            return Err(BenchFault::Streaming);
+        }
+        if self.upload.is_some() {
+            return Err(BenchFault::UploadInProgress);
+        }
+        let max = runner.max_frames();
+        if frames > max {
+            return Err(BenchFault::TooManyFrames { max });
+        }
+        let all = runner.workloads();
+        if workload == ALL_WORKLOADS {
+            return Ok(BenchPlan {
+                first: 0,
+                count: all,
+                frames,
+            });
+        }
+        match (0..all).find(|&k| runner.name(k) == workload) {
+            Some(first) => Ok(BenchPlan {
+                first,
+                count: 1,
+                frames,
+            }),
+            None => Err(BenchFault::UnknownWorkload),
+        }
+    }
+
+    /// Runs a checked bench in the engine's memory and the staging slot's
+    /// tables, one report per workload, then `Ack(BenchDone)`. The engine
+    /// is built afresh afterwards.
+    async fn bench(
+        &mut self,
+        plan: BenchPlan,
+        memory: &mut EngineMemory<'_>,
+        staging: &mut ConfigSlot<'_>,
+    ) -> LinkResult<(), T::Error> {
+        self.fresh_engine = true;
+        // Its tables are about to be overwritten: never activate them.
+        staging.header = None;
+        log_info!(
+            "device: bench of {=usize} workloads, {=u32} frames each (0: their own)",
+            plan.count,
+            plan.frames
+        );
+        for index in plan.first..plan.first + plan.count {
+            self.watchdog.feed();
+            let Some(runner) = self.bench.as_deref_mut() else {
+                break;
+            };
+            let report = runner.run(
+                index,
+                plan.frames,
+                BenchMemory {
+                    engine: reborrow(memory),
+                    windows: staging.windows,
+                    background: staging.background,
+                    gain: staging.gain,
+                },
+            );
+            self.watchdog.feed();
+            self.send(&DeviceMessage::BenchReport(report)).await?;
+            self.flush_link().await?;
+        }
+        self.send(&DeviceMessage::Ack(Ack::BenchDone {
+            workloads: saturate(plan.count),
+        }))
+        .await
     }
 
     // --- output ---------------------------------------------------------------

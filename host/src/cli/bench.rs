@@ -24,11 +24,16 @@ brightpix bench                                   # QEMU (M4, M7) and host table
 brightpix bench --json figures.json               # the same, and the figures as JSON\n  \
 brightpix bench --host-only --quick               # host table only, a short run\n  \
 brightpix bench --config my.toml --camera-rate 1000\n                                                    # my configuration on simulated spots: does a 1 kHz camera fit one board?\n  \
-brightpix bench --config my.toml --frames run.fits --mhz 400 --camera-size 240x240 --camera-rate 1500\n\n\
+brightpix bench --config my.toml --frames run.fits --mhz 400 --camera-size 240x240 --camera-rate 1500\n  \
+brightpix bench --port /dev/ttyACM0                # a board's own bench mode: DWT cycles per pixel on the board\n  \
+brightpix bench --port /dev/pts/5 --workload canary-subtract-next-n20 --frames 16 --json board.json\n\n\
 QEMU counts instructions exactly (-icount); a board's pixel rate assumes one instruction per cycle at --mhz\n\
 (Cortex-M7 dual issue can do better, flash and memory wait states worse). Host figures are median [min-max]\n\
 over interleaved rounds of runs of at least --min-run-ms; only ratios measured in the same run mean much\n\
 on a busy machine. Ratios are taken round by round.\n\
+--port asks a device's bench mode (PROTOCOL.md §14): the board measures the engine and the honest floor on its\n\
+own generated workloads (the QEMU bench's) and reports counts per frame and after the last row: DWT cycles on\n\
+the STM32H743 (and Mpx/s at its clock), instructions on the QEMU board under -icount, 'uncounted' without it.\n\
 The QEMU part needs qemu-system-arm and the thumbv7em-none-eabihf target (scripts/setup installs both);\n\
 without them the host table is still printed."
 )]
@@ -41,8 +46,20 @@ pub struct BenchArgs {
     #[arg(long, value_name = "C.toml")]
     config: Option<PathBuf>,
     /// With --config: frames to measure on (.npy or FITS cube); default: simulated spots.
-    #[arg(long, value_name = "PATH", requires = "config")]
+    /// With --port: frames measured per workload (default: each workload's own; the board takes at most 64).
+    #[arg(long, value_name = "PATH|K")]
     frames: Option<PathBuf>,
+    /// Ask the device on this serial port to measure with its own bench mode (PROTOCOL.md §14) instead of
+    /// running the QEMU and host benches here.
+    #[arg(long, value_name = "PORT", conflicts_with_all = ["config", "host_only", "qemu_only", "cores"])]
+    port: Option<String>,
+    /// With --port: the one workload to measure (default: every workload the board has).
+    #[arg(long, value_name = "NAME", requires = "port")]
+    workload: Option<String>,
+    /// With --port: the longest wait for one workload's report, seconds (the board measures in silence;
+    /// QEMU under -icount takes tens of seconds for some).
+    #[arg(long, value_name = "S", default_value_t = 600.0, requires = "port")]
+    workload_timeout: f64,
     /// With --config: the board's clock, MHz, for its pixel rate and latency.
     #[arg(long, default_value_t = 480.0, value_name = "MHZ")]
     mhz: f64,
@@ -105,6 +122,35 @@ fn parse_core(text: &str) -> Result<QemuCore, String> {
 }
 
 pub fn run(args: BenchArgs) -> Result<()> {
+    if let Some(port) = &args.port {
+        let frames = match &args.frames {
+            None => 0,
+            Some(text) => text
+                .to_str()
+                .and_then(|t| t.parse::<u32>().ok())
+                .filter(|&k| k > 0)
+                .with_context(|| {
+                    format!(
+                        "--frames {} with --port is a number of frames per workload",
+                        text.display()
+                    )
+                })?,
+        };
+        if !(args.workload_timeout.is_finite() && args.workload_timeout > 0.0) {
+            bail!("--workload-timeout {} is not a positive number of seconds", args.workload_timeout);
+        }
+        super::bench_port::run(&super::bench_port::PortBench {
+            port,
+            workload: args.workload.as_deref(),
+            frames,
+            json: args.json.as_deref(),
+            per_workload: std::time::Duration::from_secs_f64(args.workload_timeout),
+        })?;
+        return Ok(());
+    }
+    if args.frames.is_some() && args.config.is_none() {
+        bail!("--frames needs --config (a frame file) or --port (frames per workload)");
+    }
     if !(args.mhz.is_finite() && args.mhz > 0.0) {
         bail!("--mhz {} is not a positive clock", args.mhz);
     }

@@ -32,7 +32,7 @@ pub enum CpuArg {
 #[derive(Args)]
 #[command(
     about = "Run the firmware as a device on this machine and print its serial port, until Ctrl-C",
-    after_help = "Examples:\n  brightpix simulate-device                 # the firmware's device loop in-process, on /dev/pts/N\n  brightpix simulate-device --qemu          # the real firmware ELF in qemu-system-arm (mps2-an386)\n  brightpix simulate-device --qemu --pixels-fifo   # pixels also through a FIFO (much faster than QEMU's UART)\n  brightpix simulate-device --qemu --cpu m7 # the Cortex-M7 build in mps2-an500\n  brightpix simulate-device --camera sim:7  # its own camera: simulated Shack-Hartmann frames, seed 7\n  brightpix simulate-device --qemu --camera sim --camera-fps 5\n  brightpix simulate-device --link unix --socket /tmp/bp.sock\n\n\
+    after_help = "Examples:\n  brightpix simulate-device                 # the firmware's device loop in-process, on /dev/pts/N\n  brightpix simulate-device --qemu          # the real firmware ELF in qemu-system-arm (mps2-an386)\n  brightpix simulate-device --qemu --pixels-fifo   # pixels also through a FIFO (much faster than QEMU's UART)\n  brightpix simulate-device --qemu --cpu m7 # the Cortex-M7 build in mps2-an500\n  brightpix simulate-device --qemu --icount 6   # instructions counted: for `brightpix bench --port`\n  brightpix simulate-device --camera sim:7  # its own camera: simulated Shack-Hartmann frames, seed 7\n  brightpix simulate-device --qemu --camera sim --camera-fps 5\n  brightpix simulate-device --link unix --socket /tmp/bp.sock\n\n\
 The first line on stdout is the port (/dev/pts/N or unix:PATH). Then, in another terminal:\n  brightpix status --port /dev/pts/N\n  brightpix stream --port /dev/pts/N --config examples/canary.toml --frames f.npy --verify\n\
 or from Python: serial.Serial('/dev/pts/N', timeout=1) and the wire format of shared/PROTOCOL.md.\n\
 With --camera the device has a camera of its own (for `capture`): the paper's CANARY NGS spots,\n\
@@ -76,6 +76,10 @@ pub struct SimulateDeviceArgs {
     /// Keep QEMU's raw defmt log in this file.
     #[arg(long, value_name = "PATH")]
     log: Option<PathBuf>,
+    /// With --qemu: count instructions (-icount shift=SHIFT; 6 is the QEMU bench's), so that
+    /// `brightpix bench --port` gets instruction counts from the board's bench mode.
+    #[arg(long, value_name = "SHIFT", requires = "qemu", value_parser = clap::value_parser!(u32).range(0..=10))]
+    icount: Option<u32>,
 }
 
 pub fn run(args: SimulateDeviceArgs) -> Result<()> {
@@ -112,6 +116,7 @@ pub fn run(args: SimulateDeviceArgs) -> Result<()> {
             },
             camera,
             board_args: Vec::new(),
+            icount: args.icount,
         })?;
         device.release_fifo_in_background(Duration::from_secs(3600));
         println!("{}", device.port());

@@ -37,6 +37,7 @@
 //! `device_info` and `errors` are what the device says about itself and
 //! how a call fails.
 
+mod bench;
 mod device_info;
 mod errors;
 mod frames;
@@ -57,6 +58,7 @@ use brightpix_protocol::wire::{
 };
 use brightpix_protocol::Camera;
 
+pub use bench::BenchRow;
 pub use device_info::DeviceInfo;
 pub use errors::{Interrupted, LinkError};
 pub use frames::{encode_pixel_rows, pixel_rows_frames, FrameOutcome, FrameSlopes, StreamReport};

@@ -33,6 +33,8 @@ pub enum Reply {
     Ack(Ack),
     Error(DeviceError),
     Status(Status),
+    /// One workload of a `Bench` request.
+    Bench(super::bench::BenchRow),
 }
 
 impl Client {

@@ -243,6 +243,9 @@ fn decode_incoming(bytes: &mut [u8]) -> Incoming {
             results: results.to_vec(),
         },
         Ok(DeviceMessage::FrameDone { frame, count }) => Incoming::FrameDone { frame, count },
+        Ok(DeviceMessage::BenchReport(r)) => {
+            Incoming::Reply(Reply::Bench(super::bench::BenchRow::of(&r)))
+        }
         Err(_) => {
             let mut copy = copy;
             match hello_prefix(&mut copy) {

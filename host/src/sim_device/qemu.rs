@@ -174,6 +174,10 @@ pub struct QemuOptions {
     /// More semihosting arguments, for board checks (firmware/boards/qemu
     /// `args.rs`: e.g. `selftest=fault-once`).
     pub board_args: Vec<String>,
+    /// `-icount shift=S`: every instruction takes 2^S ns of virtual time, so
+    /// the board's bench request counts instructions exactly (idle time
+    /// still follows the host's clock: `sleep=on`).
+    pub icount: Option<u32>,
 }
 
 /// The firmware in `qemu-system-arm`. Stops (kills QEMU) when dropped, and
@@ -272,6 +276,9 @@ impl QemuDevice {
                 semihosting.push_str(",arg=");
                 semihosting.push_str(a);
             }
+        }
+        if let Some(shift) = options.icount {
+            command.args(["-icount", &format!("shift={shift}")]);
         }
         command
             .args(["-semihosting-config", &semihosting, "-kernel"])

@@ -47,6 +47,7 @@
 //! does not decode comes from another protocol version: read its frozen
 //! prefix with [`hello_prefix`] and report [`VersionMismatch`].
 
+pub mod bench;
 pub mod frame;
 pub mod health;
 pub mod tables;
@@ -59,6 +60,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::{Camera, ConfigError, Crop, LevelFilter, MapKind, MemoryKind, SelectionRule};
 
+pub use bench::{
+    BenchFault, BenchFigures, BenchLimit, BenchReport, BenchResult, CountUnit, FloorCheck, Spread,
+    ALL_WORKLOADS, MAX_WORKLOAD_NAME_LEN,
+};
 pub use frame::{
     decode, decode_body, encode, hello_in_body, hello_prefix, unstuff, Crc32Digest, FrameReader,
     Received, WireError, CRC32, CRC_LEN,
@@ -78,7 +83,9 @@ pub use tables::{PixelRowsPlan, UploadPlan};
 /// background as a scalar, N = 0 for every sub-aperture as its own fault.
 /// Version 4: the crop rectangle of a board that captures part of a
 /// sensor (`ConfigHeader.crop`, `DeviceError::Crop`). Version 5: the
-/// engine's counters in `Status` (`Status.engine`).
+/// engine's counters in `Status` (`Status.engine`), and the bench request
+/// (`HostMessage::Bench`, `DeviceMessage::BenchReport`, `Ack::BenchDone`,
+/// `DeviceError::Bench`).
 /// PROTOCOL.md §12 lists every version.
 pub const PROTOCOL_VERSION: u16 = 5;
 
@@ -210,6 +217,11 @@ pub enum HostMessage<'a> {
     Capture { frames: u32 },
     /// Stops the camera. Reply: `Ack(CaptureStopped)`.
     StopCapture,
+    /// Measures the engine on the board's own workloads (`workload`: one
+    /// name, or [`ALL_WORKLOADS`]), `frames` frames each (0: each
+    /// workload's own count). Replies: one `BenchReport` per workload, then
+    /// `Ack(BenchDone)`; or `Error(Bench(..))` and nothing measured.
+    Bench { workload: &'a str, frames: u32 },
 }
 
 /// Protocol identity: the frozen prefix of `Hello` and `HelloReply`. These
@@ -336,6 +348,8 @@ pub enum DeviceMessage<'a> {
         frame: u32,
         count: u32,
     },
+    /// One workload of a `Bench` request.
+    BenchReport(#[serde(borrow)] BenchReport<'a>),
 }
 
 /// The device's identity and limits. The first two fields are frozen.
@@ -416,6 +430,11 @@ pub enum Ack {
     /// Also sent unrequested when a `Capture` of a fixed count ends.
     CaptureStopped {
         frames: u32,
+    },
+    /// A `Bench` request is done: `workloads` reports were sent. The
+    /// active configuration is unchanged; its level filters start afresh.
+    BenchDone {
+        workloads: u32,
     },
 }
 
@@ -568,6 +587,8 @@ pub enum DeviceError {
     /// At `ConfigBegin`: the device's camera interface cannot crop the
     /// header's rectangle. The upload is not started.
     Crop(CropFault),
+    /// A `Bench` request was refused; nothing was measured.
+    Bench(BenchFault),
 }
 
 /// Why a device's camera interface cannot capture a crop rectangle (the
@@ -883,6 +904,7 @@ pub enum MessageKind {
     PixelRows,
     Capture,
     StopCapture,
+    Bench,
 }
 
 impl HostMessage<'_> {
@@ -898,6 +920,7 @@ impl HostMessage<'_> {
             HostMessage::PixelRows { .. } => MessageKind::PixelRows,
             HostMessage::Capture { .. } => MessageKind::Capture,
             HostMessage::StopCapture => MessageKind::StopCapture,
+            HostMessage::Bench { .. } => MessageKind::Bench,
         }
     }
 }
@@ -1085,6 +1108,7 @@ impl fmt::Display for DeviceError {
                 f,
                 "the device's camera interface cannot crop this rectangle: {fault}"
             ),
+            Bench(fault) => write!(f, "bench refused: {fault}"),
         }
     }
 }

@@ -217,10 +217,13 @@ def msg_pixel_rows(frame_id, first_pixel, pixel_bytes):
 
 TABLE_WINDOWS, TABLE_BACKGROUND = 0, 2
 ACKS = ["UploadStarted", "ChunkStored", "ConfigApplied", "UploadAborted", "LevelFiltersReset",
-        "CaptureStarted", "CaptureStopped"]
+        "CaptureStarted", "CaptureStopped", "BenchDone"]
 ERRORS = ["Decode", "Crc", "FrameTooLong", "HelloRequired", "Unexpected", "NoUpload",
           "UploadMismatch", "ChunkOutOfOrder", "ChunkLength", "ChunkPastEnd", "UploadIncomplete",
-          "UploadCrc", "Capacity", "Config", "NotConfigured", "Frame", "NoCamera", "Crop"]
+          "UploadCrc", "Capacity", "Config", "NotConfigured", "Frame", "NoCamera", "Crop", "Bench"]
+COUNT_UNITS = ["Cycles", "Instructions", "Uncounted"]
+BENCH_LIMITS = ["Pixels", "Windows", "EngineMemory"]
+FLOOR_CHECKS = ["Equal", "NotComparable"]
 SOURCES = ["Link", "Stream", "Camera"]
 ERRATUM_FIXES = ["NotNeeded", "Applied", "Failed"]
 
@@ -278,7 +281,32 @@ def decode_device(body):
         return "Slopes", dict(frame=frame_id, results=entries)
     if kind == 5:
         return "FrameDone", dict(frame=r.varint(), count=r.varint())
+    if kind == 6:
+        return "BenchReport", decode_bench_report(r)
     raise ValueError("unknown device message %d" % kind)
+
+
+def decode_bench_report(r):
+    """BenchReport (PROTOCOL.md §14), as serde's JSON of it."""
+    spread = lambda: dict(min=r.varint(), median=r.varint(), max=r.varint())
+    report = dict(workload=r.bytes().decode(), unit=COUNT_UNITS[r.varint()],
+                  clock_hz=r.option(r.varint), pixels=r.varint(), frames=r.varint())
+    variant = r.varint()
+    if variant == 0:
+        result = {"Measured": dict(engine_total=r.varint(), engine_frame=spread(),
+                                   engine_last_row=spread(), floor_total=r.varint(),
+                                   floor_frame=spread(), floor_last_row=spread(),
+                                   floor_check=FLOOR_CHECKS[r.varint()])}
+    elif variant == 1:
+        result = {"DoesNotFit": dict(limit=BENCH_LIMITS[r.varint()])}
+    elif variant == 2:
+        result = {"SlopesDiffer": dict(window=r.varint())}
+    else:
+        raise ValueError("unknown bench result %d" % variant)
+    report["result"] = result
+    if r.rest():
+        raise ValueError("bytes after a BenchReport")
+    return report
 
 
 def decode_health(r):
@@ -648,6 +676,8 @@ def check_vectors():
                 fix = health["silicon"]["axi_sram_fix"]
                 health["silicon"] = dict(health["silicon"], axi_sram_fix=ERRATUM_FIXES.index(fix))
             assert fields["health"] == health, (fields["health"], health)
+        if kind == "BenchReport":
+            assert fields == message["BenchReport"], (fields, message)
         count += 1
     print("vectors: %d device messages decoded and the Hello encoded as in "
           "shared/protocol-vectors.json" % count)

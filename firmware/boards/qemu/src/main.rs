@@ -15,6 +15,16 @@
 #![no_std]
 #![no_main]
 
+mod bench_request;
+/// The QEMU bench's instruction meter (one source file for both binaries).
+#[path = "bench/meter.rs"]
+#[allow(dead_code)]
+mod meter;
+/// The counter trait the meter implements: here `brightpix-bench`'s own.
+mod counter {
+    pub use brightpix_bench::Counter;
+}
+
 use brightpix_board_common::{executor, fault, stack};
 use brightpix_board_qemu::args::{Options, Selftest};
 use brightpix_board_qemu::hostfs::{self, HostFile};
@@ -103,6 +113,7 @@ fn main() -> ! {
     let uart = Uart0::new().unwrap();
     let mut device = Device::new(uart, source, storage::device_buffers(), board_name());
     device.set_health(brightpix_board_qemu::health);
+    device.set_bench(bench_request::bench());
     let c = device.capabilities();
     defmt::info!(
         "device: {=u32} sub-apertures, maps of {=u32} pixels, {=u32} open windows, {=u32} pool entries, {=u32} results per row; buffers {=usize} bytes; pixel source {}",

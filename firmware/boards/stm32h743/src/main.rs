@@ -16,13 +16,16 @@
 //!   (painted, MPU-guarded: `brightpix_board_common::stack`), DCMI/DMA
 //!   error counters, CPU idle time;
 //! - 400 MHz from HSI via PLL1, I- and D-cache on; defmt over RTT (the
-//!   embassy drivers' logs too).
+//!   embassy drivers' logs too);
+//! - the bench request ([`bench`]): the engine and its floor in DWT cycles
+//!   on the board's own workloads.
 //!
 //! NOT RUN ON HARDWARE: it builds; the camera source's logic is tested on
 //! the host (`tests/tests/camera_*.rs`); see firmware/README.md.
 #![no_std]
 #![no_main]
 
+mod bench;
 mod dcmi;
 mod fault;
 mod health;
@@ -189,10 +192,13 @@ async fn device_task(memory: Memory) {
     let camera = DcmiSource::new(ring, DATA_WIDTH, run_words, run_pixels);
 
     // --- the device loop ---------------------------------------------------------
+    let mut bench = bench::Bench::new(bench::Cycles::new(), &mut axi.bench);
     let buffers = storage::device_buffers(&mut axi.background, &mut axi.engine, d2, device_memory);
     let mut device = Device::new(UsbLink::new(class), camera, buffers, BOARD).with_watchdog(iwdg);
     device.set_reset_reason(reset);
     device.set_health(health::health);
+    // `brightpix bench --port`: DWT cycles on the board's own workloads.
+    device.set_bench(&mut bench);
     let capabilities = device.capabilities();
     defmt::info!(
         "device: {=u32} sub-apertures, {=u32} camera pixels of maps, {=u32} open windows, {=u32} pool entries",

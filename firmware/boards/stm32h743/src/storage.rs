@@ -13,6 +13,7 @@
 //! | AXI SRAM (512 KiB, DMA-reachable) | DCMI DMA ring: 1920 words = 16 rows of 240 pixels at 16 bits | 7 680 |
 //! | | background maps, 2 slots x 57 600 x i32 | 460 800 |
 //! | | the engine's row history (16 rows of 240) and rescan scratch (a 16 x 16 window) | 10 240 |
+//! | | the bench request's buffers (256 windows, 64 frames) | 21 504 |
 //! | D2 SRAM1-3 (288 KiB) | gain maps, 2 slots x 57 600 x u16 | 230 400 |
 //! | | windows, pixel counts, reference slopes: 2 slots x 1600 x 18 | 57 600 |
 //!
@@ -85,6 +86,9 @@ pub struct AxiSram {
     pub ring: [u32; RING_WORDS],
     pub background: [[i32; CAMERA_PIXELS]; 2],
     pub engine: EngineSram,
+    /// The bench request's own buffers (per window and per frame; the
+    /// frames and maps it borrows from the staging slot).
+    pub bench: crate::bench::Buffers,
 }
 
 /// The engine's memory that is touched only when a window needs a rescan

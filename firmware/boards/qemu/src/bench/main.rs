@@ -31,12 +31,27 @@
 #![no_std]
 #![no_main]
 
+// The workloads, frames, floor and sort are `brightpix-bench`'s (one
+// implementation, shared with the boards' bench request), compiled here as
+// modules of this binary, which does not link that crate: in one crate
+// with the timed loops, as they always were, so the code around the timed
+// calls, and with it every figure of the QEMU tables, is what it was (see
+// firmware/bench/src/lib.rs).
+#[path = "../../../../bench/src/counter.rs"]
+mod counter;
+#[path = "../../../../bench/src/floor.rs"]
 mod floor;
+#[path = "../../../../bench/src/floor_row.rs"]
 mod floor_row;
+#[path = "../../../../bench/src/frames.rs"]
 mod frames;
 mod meter;
+#[path = "../../../../bench/src/sort.rs"]
 mod sort;
 mod user;
+// (FrameCounts and floor_comparable serve the boards' bench request.)
+#[path = "../../../../bench/src/workloads.rs"]
+#[allow(dead_code)]
 mod workloads;
 
 use brightpix_board_qemu::{exit, exit_code};
@@ -54,6 +69,7 @@ use cortex_m_rt::entry;
 use semihosting::println;
 use static_cell::ConstStaticCell;
 
+use counter::Counter;
 use frames::Rng;
 use meter::Meter;
 use workloads::{Buffers, Measured, Workload, MAX_MAP_PIXELS, MAX_PIXELS, MAX_WINDOWS};
@@ -96,6 +112,7 @@ static ENGINE_RESULTS: ConstStaticCell<[SubapertureResult; MAX_WINDOWS]> =
     ConstStaticCell::new([NO_RESULT; MAX_WINDOWS]);
 static FLOOR_RESULTS: ConstStaticCell<[SubapertureResult; MAX_WINDOWS]> =
     ConstStaticCell::new([NO_RESULT; MAX_WINDOWS]);
+
 static MEMORY: ConstStaticCell<Memory> = ConstStaticCell::new(Memory::new());
 
 fn fail(what: &str) -> ! {
@@ -264,7 +281,12 @@ fn main() -> ! {
         if only.as_ref().is_some_and(|name| name.as_str() != w.name) {
             continue;
         }
-        let m = match workloads::measure(w, &meter, &mut buffers, memory.borrow()) {
+        let m = match workloads::measure::<{ floor::MAX_ACROSS }>(
+            w,
+            &meter,
+            &mut buffers,
+            memory.borrow(),
+        ) {
             Ok(m) => m,
             Err(e) => {
                 println!("{}: {} (window {})", w.name, e.what, e.index);

@@ -5,10 +5,17 @@
 //! instruction count. The meter measures ticks per instruction on a loop of
 //! known length rather than trusting S, and says so if QEMU does not run
 //! with `-icount` (the figures are then host-time noise, not counts).
+//!
+//! Used by both binaries: the bench (`brightpix-qemu-bench`) and the
+//! device's bench request (`src/bench_request.rs`).
 
 use core::sync::atomic::{compiler_fence, Ordering};
 
 use brightpix_board_qemu::timer;
+
+// `brightpix-bench`'s trait: its source file compiled into the bench
+// binary, the crate's own in the device binary (each says `mod counter`).
+use crate::counter::Counter;
 
 /// Converts timer ticks to instructions.
 pub struct Meter {
@@ -55,10 +62,12 @@ impl Meter {
         };
         (meter, shift)
     }
+}
 
+impl Counter for Meter {
     /// Instructions `f` takes (from ticks, less the timer overhead).
     #[inline(always)]
-    pub fn count<R>(&self, f: impl FnOnce() -> R) -> (f64, R) {
+    fn count<R>(&self, f: impl FnOnce() -> R) -> (f64, R) {
         compiler_fence(Ordering::SeqCst);
         let t0 = timer::ticks();
         compiler_fence(Ordering::SeqCst);

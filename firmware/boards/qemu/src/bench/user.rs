@@ -23,6 +23,7 @@ use heapless::String;
 use semihosting::println;
 use static_cell::ConstStaticCell;
 
+use crate::counter::Counter;
 use crate::meter::Meter;
 use crate::workloads::Buffers;
 

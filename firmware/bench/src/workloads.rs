@@ -11,8 +11,8 @@ use brightpix_protocol::{
 
 use crate::floor::{read_every_pixel, Floor, FloorMode};
 use crate::frames::{background_pattern, Generator, Grid, Pattern};
-use crate::meter::Meter;
 use crate::sort;
+use crate::Counter;
 
 /// One measured configuration.
 #[derive(Clone, Copy, Debug)]
@@ -228,6 +228,27 @@ pub struct Measured {
     pub stats: EngineStats,
 }
 
+/// One measured frame's counts (a board's bench request reports their
+/// minimum, median and maximum; `device::Recorder` collects them).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FrameCounts {
+    pub engine: f64,
+    /// The pushes that carry the frame's last camera row.
+    pub engine_last_row: f64,
+    pub floor: f64,
+    pub floor_last_row: f64,
+}
+
+impl Workload {
+    /// Whether the floor does the engine's arithmetic (subtract-next, or
+    /// no selection, without level filter): [`measure`] then checks their
+    /// slopes are equal on every frame.
+    pub fn floor_comparable(&self) -> bool {
+        let selects = (self.n as usize) < self.grid.side * self.grid.side;
+        (self.rule == SelectionRule::SubtractNext || !selects) && self.level_filter.is_none()
+    }
+}
+
 impl Measured {
     pub fn per_pixel(&self, instructions: f64) -> f64 {
         instructions / self.pixels as f64
@@ -244,6 +265,9 @@ pub struct Buffers<'b> {
     pub engine_results: &'b mut [SubapertureResult],
     pub floor_results: &'b mut [SubapertureResult],
 }
+
+/// [`Mismatch::what`] when the engine's memory refused the workload.
+pub const ENGINE_REFUSED: &str = "the engine refused the workload's configuration";
 
 /// The results differ where both should be bit-identical.
 #[derive(Debug)]
@@ -282,10 +306,24 @@ pub fn config<'a>(
 /// Measures `w`: the engine, its floors and, if asked, the sort, on the
 /// same frames. Checks the floor's slopes equal the engine's where they do
 /// the same arithmetic (subtract-next without level filter), and the
-/// sort's.
-pub fn measure(
+/// sort's. `A`: the widest grid row the floor holds (at least
+/// `w.grid.across`).
+///
+/// Every frame, in this order: `meter.between_frames()`, then one count
+/// per engine push (a camera row, or `w.chunk` pixels), one per camera row
+/// of the floor, then the other floors' and the sort's (`device::Recorder`
+/// relies on this order). The code of this function is the QEMU tables':
+/// a change here moves the instructions around the timed calls.
+///
+/// In the QEMU bench binary (`cfg(brightpix_qemu_bench)`) it counts with
+/// that binary's `Meter` by name: generic over the counter, rustc cannot
+/// inline the counter into this function before LLVM sees it, and the
+/// code around the timed calls changes (the CANARY engine figure by 0.009
+/// instr/px, its last row by 1): the QEMU tables stay as they were.
+pub fn measure<#[cfg(not(brightpix_qemu_bench))] C: Counter, const A: usize>(
     w: &Workload,
-    meter: &Meter,
+    #[cfg(not(brightpix_qemu_bench))] meter: &C,
+    #[cfg(brightpix_qemu_bench)] meter: &crate::meter::Meter,
     b: &mut Buffers<'_>,
     memory: EngineMemory<'_>,
 ) -> Result<Measured, Mismatch> {
@@ -317,7 +355,7 @@ pub fn measure(
     let config = config(w, windows, background);
     let Ok(mut engine) = Engine::new(config, memory) else {
         return Err(Mismatch {
-            what: "the engine refused the workload's configuration",
+            what: ENGINE_REFUSED,
             index: 0,
         });
     };
@@ -343,6 +381,7 @@ pub fn measure(
     };
     let selects = (w.n as usize) < grid.side * grid.side;
     for _ in 0..w.frames {
+        meter.between_frames();
         generator.frame(frame);
         sort::levels(frame, background, grid, w.n as usize, b.levels);
         // The engine: rows, or runs of `chunk` pixels across rows.
@@ -373,7 +412,7 @@ pub fn measure(
         } else {
             FloorMode::AllPixels
         };
-        let mut floor = Floor::new(
+        let mut floor = Floor::<A>::new(
             grid,
             config.calibration,
             centroider,
@@ -407,7 +446,7 @@ pub fn measure(
         }
         // The floor as first defined: every pixel calibrated.
         if selects {
-            let mut all = Floor::new(
+            let mut all = Floor::<A>::new(
                 grid,
                 config.calibration,
                 centroider,

@@ -85,8 +85,10 @@ pub enum FloorMode {
     AllPixels,
 }
 
-/// Windows of one grid row, at most.
-const MAX_ACROSS: usize = 128;
+/// Windows of one grid row the QEMU bench's floor holds (the ELT-like
+/// grid's 80); a board's bench mode chooses fewer (`Floor`'s `A`), as its
+/// stack is small.
+pub const MAX_ACROSS: usize = 128;
 
 /// The widest window side the floor handles (the bench's grids: 8 to 32).
 const MAX_SIDE: usize = 64;
@@ -94,8 +96,9 @@ const MAX_SIDE: usize = 64;
 /// The background of a run without a map.
 static NO_BACKGROUND: [i32; 4096] = [0; 4096];
 
-/// A streaming centre of gravity over a regular grid with known levels.
-pub struct Floor<'a> {
+/// A streaming centre of gravity over a regular grid with known levels, for
+/// grids of at most `A` windows across.
+pub struct Floor<'a, const A: usize = MAX_ACROSS> {
     grid: Grid,
     calibration: Calibration<'a>,
     centroider: Centroider<'a>,
@@ -107,12 +110,12 @@ pub struct Floor<'a> {
     bounds: &'a [WindowBounds],
     /// Per window of the current grid row: its sums, raw floor and level
     /// (the other modes).
-    sums: [Moments; MAX_ACROSS],
-    floors: [u32; MAX_ACROSS],
-    row_levels: [i32; MAX_ACROSS],
+    sums: [Moments; A],
+    floors: [u32; A],
+    row_levels: [i32; A],
     /// Per window of the current grid row, as the row kernel keeps them
     /// ([`FloorMode::Skip`]).
-    kernel: [FloorWindow; MAX_ACROSS],
+    kernel: [FloorWindow; A],
     /// Some window of the current grid row has raw floor 0 (every pixel
     /// can pass, which the kernel's lanes cannot say): it is summed
     /// pixel by pixel after the kernel, which skips it.
@@ -126,7 +129,7 @@ pub struct Floor<'a> {
     bg_row: usize,
 }
 
-impl<'a> Floor<'a> {
+impl<'a, const A: usize> Floor<'a, A> {
     pub fn new(
         grid: Grid,
         calibration: Calibration<'a>,
@@ -135,7 +138,7 @@ impl<'a> Floor<'a> {
         levels: &'a [i32],
         bounds: &'a [WindowBounds],
     ) -> Self {
-        assert!(grid.across <= MAX_ACROSS && grid.side <= MAX_SIDE);
+        assert!(grid.across <= A && grid.side <= MAX_SIDE);
         assert!(mode != FloorMode::Skip || grid.side.is_multiple_of(2));
         assert!(grid.width() <= NO_BACKGROUND.len());
         Floor {
@@ -145,10 +148,10 @@ impl<'a> Floor<'a> {
             mode,
             levels,
             bounds,
-            sums: [Moments::ZERO; MAX_ACROSS],
-            floors: [0; MAX_ACROSS],
-            row_levels: [0; MAX_ACROSS],
-            kernel: [FloorWindow::default(); MAX_ACROSS],
+            sums: [Moments::ZERO; A],
+            floors: [0; A],
+            row_levels: [0; A],
+            kernel: [FloorWindow::default(); A],
             any_floor_zero: false,
             args: FloorRow {
                 row: core::ptr::null(),

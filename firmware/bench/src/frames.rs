@@ -73,6 +73,7 @@ impl Rng {
     }
 
     /// Uniform in [0, 1).
+    #[allow(clippy::should_implement_trait)]
     pub fn next(&mut self) -> f32 {
         self.0 ^= self.0 << 13;
         self.0 ^= self.0 >> 7;
