@@ -239,8 +239,9 @@ impl<C: BoardCounter, const W: usize, const F: usize> BenchRunner for BoardBench
         match measured {
             Ok(m) => {
                 let samples = &b.samples[..w.frames];
-                let spread = |f: fn(&FrameCounts) -> f64| {
-                    let mut values = [0u64; F];
+                // One array for the four (the board's stack is small).
+                let mut values = [0u64; F];
+                let mut spread = |f: fn(&FrameCounts) -> f64| {
                     for (v, s) in values.iter_mut().zip(samples) {
                         *v = round(f(s));
                     }
