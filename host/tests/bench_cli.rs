@@ -150,6 +150,14 @@ fn bad_arguments_are_refused_before_any_work() {
         ),
         (vec!["--mhz", "0"], "not a positive clock"),
         (vec!["--frames", "x.npy"], "--config"),
+        // The board's bench mode (--port).
+        (
+            vec!["--port", "/nonexistent/tty", "--frames", "many"],
+            "frames per workload",
+        ),
+        (vec!["--workload", "canary-subtract-next-n20"], "--port"),
+        (vec!["--port", "/nonexistent/tty", "--host-only"], "--host-only"),
+        (vec!["--port", "/nonexistent/tty"], "/nonexistent/tty"),
         (
             vec!["--config", "/nonexistent/c.toml", "--host-only"],
             "/nonexistent/c.toml",

@@ -521,7 +521,10 @@ fn bench_port_counts_instructions_and_keeps_the_configuration() {
         ("engine", f.engine_frame, f.engine_total),
         ("floor", f.floor_frame, f.floor_total),
     ] {
-        assert!(s.min > 0 && s.min <= s.median && s.median <= s.max, "{name}: {s:?}");
+        assert!(
+            s.min > 0 && s.min <= s.median && s.median <= s.max,
+            "{name}: {s:?}"
+        );
         let frames = row.frames as u64;
         assert!(
             s.min * frames <= total + frames && total <= s.max * frames + frames,
@@ -533,7 +536,10 @@ fn bench_port_counts_instructions_and_keeps_the_configuration() {
         bench_port::per_pixel(row, f.engine_total),
         bench_port::per_pixel(row, f.floor_total),
     );
-    assert!(engine > floor && engine / floor < 6.0, "{engine} vs {floor}");
+    assert!(
+        engine > floor && engine / floor < 6.0,
+        "{engine} vs {floor}"
+    );
 
     // The QEMU bench on the same workload and core.
     let repo = brightpix::bench::qemu::repository_root().expect("the repository");
@@ -552,14 +558,22 @@ fn bench_port_counts_instructions_and_keeps_the_configuration() {
         q.floor_instr_per_px.unwrap(),
         q.last_row_instructions
     );
-    assert!(near(engine, q.instr_per_px, 0.02), "engine {engine} vs {}", q.instr_per_px);
+    assert!(
+        near(engine, q.instr_per_px, 0.02),
+        "engine {engine} vs {}",
+        q.instr_per_px
+    );
     assert!(
         near(floor, q.floor_instr_per_px.unwrap(), 0.03),
         "floor {floor} vs {:?}",
         q.floor_instr_per_px
     );
     assert!(
-        near(f.engine_last_row.median as f64, q.last_row_instructions, 0.15),
+        near(
+            f.engine_last_row.median as f64,
+            q.last_row_instructions,
+            0.15
+        ),
         "last row {:?} vs {}",
         f.engine_last_row,
         q.last_row_instructions

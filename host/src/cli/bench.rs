@@ -137,7 +137,10 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 })?,
         };
         if !(args.workload_timeout.is_finite() && args.workload_timeout > 0.0) {
-            bail!("--workload-timeout {} is not a positive number of seconds", args.workload_timeout);
+            bail!(
+                "--workload-timeout {} is not a positive number of seconds",
+                args.workload_timeout
+            );
         }
         super::bench_port::run(&super::bench_port::PortBench {
             port,

@@ -139,7 +139,10 @@ pub fn table(board: &str, rows: &[BenchRow]) -> String {
     for row in rows {
         match &row.result {
             BenchResult::Measured(f) => {
-                let (engine, floor) = (per_pixel(row, f.engine_total), per_pixel(row, f.floor_total));
+                let (engine, floor) = (
+                    per_pixel(row, f.engine_total),
+                    per_pixel(row, f.floor_total),
+                );
                 let _ = writeln!(
                     out,
                     "{:<34} {:>12} {:>9.2} {:>9.2} {:>7.2} {:>10} {:>10} {:>8}  {}",
@@ -147,7 +150,11 @@ pub fn table(board: &str, rows: &[BenchRow]) -> String {
                     unit_per_px(row.unit),
                     engine,
                     floor,
-                    if floor > 0.0 { engine / floor } else { f64::NAN },
+                    if floor > 0.0 {
+                        engine / floor
+                    } else {
+                        f64::NAN
+                    },
                     f.engine_last_row.median,
                     f.floor_last_row.median,
                     mpx_per_s(row, f).map_or("-".to_string(), |m| format!("{m:.1}")),
@@ -203,7 +210,10 @@ pub fn row_json(row: &BenchRow) -> serde_json::Value {
     let map = value.as_object_mut().expect("an object");
     match &row.result {
         BenchResult::Measured(f) => {
-            let (engine, floor) = (per_pixel(row, f.engine_total), per_pixel(row, f.floor_total));
+            let (engine, floor) = (
+                per_pixel(row, f.engine_total),
+                per_pixel(row, f.floor_total),
+            );
             map.insert("measured".into(), json!(true));
             map.insert("engine_total".into(), json!(f.engine_total));
             map.insert("floor_total".into(), json!(f.floor_total));
