@@ -76,6 +76,8 @@ impl Client {
                     rows.push(row);
                 }
                 Reply::Ack(Ack::BenchDone { .. }) => return Ok(rows),
+                // A late answer to an earlier Hello (QEMU's pty, PROTOCOL.md §10).
+                Reply::Hello(_) => {}
                 Reply::Error(error) => {
                     return Err(LinkError::Device {
                         request: "Bench".into(),
