@@ -156,7 +156,10 @@ fn bad_arguments_are_refused_before_any_work() {
             "frames per workload",
         ),
         (vec!["--workload", "canary-subtract-next-n20"], "--port"),
-        (vec!["--port", "/nonexistent/tty", "--host-only"], "--host-only"),
+        (
+            vec!["--port", "/nonexistent/tty", "--host-only"],
+            "--host-only",
+        ),
         (vec!["--port", "/nonexistent/tty"], "/nonexistent/tty"),
         (
             vec!["--config", "/nonexistent/c.toml", "--host-only"],
