@@ -7,12 +7,13 @@
 //! | memory | what | bytes |
 //! |---|---|---|
 //! | DTCM (128 KiB, RAM: `.data`/`.bss`/stack) | engine memory (1600 sub-apertures, 128 open windows, 3072 candidate entries) | about 77 000 |
-//! | | upload vetting scratch, result queue (64 per row), link buffers, `PixelRows` batch | 12 000 |
+//! | | result queue (64 per row), link buffers, `PixelRows` batch | 5 600 |
 //! | | camera run buffers (256 words, 1024 pixels) | 3 072 |
 //! | | stack (at least, checked by the linker), executor task, USB, defmt | >= 16 384 + ~10 000 |
 //! | AXI SRAM (512 KiB, DMA-reachable) | DCMI DMA ring: 1920 words = 16 rows of 240 pixels at 16 bits | 7 680 |
 //! | | background maps, 2 slots x 57 600 x i32 | 460 800 |
 //! | | the engine's row history (16 rows of 240) and rescan scratch (a 16 x 16 window) | 10 240 |
+//! | | upload vetting scratch (2 x 1600 x u16; touched only by an upload) | 6 400 |
 //! | | the bench request's buffers (256 windows, 64 frames) | 21 504 |
 //! | D2 SRAM1-3 (288 KiB) | gain maps, 2 slots x 57 600 x u16 | 230 400 |
 //! | | windows, pixel counts, reference slopes: 2 slots x 1600 x 18 | 57 600 |
@@ -98,6 +99,10 @@ pub struct EngineSram {
     pub history: [u16; HISTORY_PIXELS],
     pub scratch: [i32; SCRATCH_ENTRIES],
     pub rescan: [Entry; SCRATCH_ENTRIES],
+    /// The device's scratch for vetting an upload (touched only then): out
+    /// of the DTCM since the engine's memory there grew (the lean row path).
+    pub vet_order: [u16; SUBAPERTURES],
+    pub vet_scratch: [u16; SUBAPERTURES],
 }
 
 /// D2 SRAM1-3: the gain maps and the per-sub-aperture tables.
@@ -127,8 +132,6 @@ pub struct WordAligned<T>(pub T);
 /// DTCM: everything the CPU works on per pixel, and the small buffers.
 pub struct Dtcm {
     pub engine: StaticEngineMemory<SUBAPERTURES, OPEN_WINDOWS, POOL_ENTRIES, 0, 0>,
-    pub order: [u16; SUBAPERTURES],
-    pub scratch: [u16; SUBAPERTURES],
     pub results: [SubapertureResult; RESULTS_PER_ROW],
     pub rx: [u8; MAX_FRAME_LEN],
     pub tx: [u8; MAX_FRAME_LEN],
@@ -141,8 +144,6 @@ impl Dtcm {
     pub const fn new() -> Self {
         Dtcm {
             engine: StaticEngineMemory::new(),
-            order: [0; SUBAPERTURES],
-            scratch: [0; SUBAPERTURES],
             results: [NO_RESULT; RESULTS_PER_ROW],
             rx: [0; MAX_FRAME_LEN],
             tx: [0; MAX_FRAME_LEN],
@@ -217,8 +218,8 @@ pub fn device_buffers<'d>(
             rescan: &mut engine_sram.rescan,
             ..dtcm.engine.borrow()
         },
-        order: dtcm.order,
-        scratch: dtcm.scratch,
+        order: &mut engine_sram.vet_order,
+        scratch: &mut engine_sram.vet_scratch,
         results: dtcm.results,
         rx: dtcm.rx,
         tx: dtcm.tx,
@@ -229,8 +230,6 @@ pub fn device_buffers<'d>(
 /// The device's part of the DTCM, split from the camera's run buffers.
 pub struct DtcmDevice<'a> {
     pub engine: &'a mut StaticEngineMemory<SUBAPERTURES, OPEN_WINDOWS, POOL_ENTRIES, 0, 0>,
-    pub order: &'a mut [u16],
-    pub scratch: &'a mut [u16],
     pub results: &'a mut [SubapertureResult],
     pub rx: &'a mut [u8],
     pub tx: &'a mut [u8],
@@ -243,8 +242,6 @@ impl Dtcm {
         (
             DtcmDevice {
                 engine: &mut self.engine,
-                order: &mut self.order,
-                scratch: &mut self.scratch,
                 results: &mut self.results,
                 rx: &mut self.rx,
                 tx: &mut self.tx,
