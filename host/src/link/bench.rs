@@ -4,9 +4,7 @@
 
 use std::time::Duration;
 
-use brightpix_protocol::wire::{
-    Ack, BenchReport, BenchResult, CountUnit, DeviceError, HostMessage, MAX_WORKLOAD_NAME_LEN,
-};
+use brightpix_protocol::wire::{Ack, BenchReport, BenchResult, CountUnit, HostMessage};
 
 use super::errors::unexpected;
 use super::requests::Reply;
@@ -40,7 +38,8 @@ impl BenchRow {
 }
 
 impl Client {
-    /// `Bench { workload, frames }`: the board's reports, one per workload
+    /// `Bench { workload, frames }` (PROTOCOL.md §14; `workload` at most
+    /// `MAX_WORKLOAD_NAME_LEN` bytes): the board's reports, one per workload
     /// (`workload`: a name or `"all"`; `frames` 0: each workload's own), in
     /// order, each also handed to `each` as it arrives. The device measures
     /// in silence: `per_workload` is the longest wait for the next report.
@@ -51,12 +50,8 @@ impl Client {
         per_workload: Duration,
         mut each: impl FnMut(&BenchRow),
     ) -> Result<Vec<BenchRow>, LinkError> {
-        if workload.len() > MAX_WORKLOAD_NAME_LEN {
-            return Err(LinkError::Device {
-                request: "Bench".into(),
-                error: DeviceError::Bench(brightpix_protocol::wire::BenchFault::UnknownWorkload),
-            });
-        }
+        // (A name longer than MAX_WORKLOAD_NAME_LEN matches no workload:
+        // the device answers UnknownWorkload itself.)
         self.move_replies_to_notices();
         self.close_pixel_fifo();
         let frame = self
