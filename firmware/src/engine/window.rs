@@ -41,8 +41,8 @@ const ENTRY: usize = core::mem::size_of::<Entry>();
 /// The open windows are kept in the engine's memory in order of first
 /// column, so the row kernel (`scan::row`) walks them one after the other.
 /// It reads and writes the fields before `buffer` (and, when it raises a
-/// window's admission itself, `low`, `floor` and `strict`: see
-/// `raise_floor`), at the offsets `scan`'s assembly takes from `offset_of!`; the candidate buffer's two tiers are
+/// window's admission itself, `low`, `floor` and `strict`: see `raise`),
+/// at the offsets `scan`'s assembly takes from `offset_of!`; the candidate buffer's two tiers are
 /// kept as addresses (`front_end`, `back_start`) because that is what the
 /// kernel stores through, and everything else derives the tiers' lengths
 /// from them ([`OpenWindow::front`], [`OpenWindow::back`]).
@@ -78,20 +78,10 @@ pub struct OpenWindow {
     pub(crate) attention: usize,
     /// Bytes of room a segment can take (`8 width`): when less is left
     /// after a segment, the kernel stops at the window.
-    pub(crate) room: u32,
-    /// When the front reaches `attention`, the kernel raises admission to
-    /// just above the hint itself instead of stopping, if this is not 0
-    /// (`subtract-next`, where reaching `attention` always proves the
-    /// cutoff at or above the hint: see `stream::admission::prepare_raise`):
-    /// the raw floor and lanes for `raise_admit` (`hint + 1`), set with the
-    /// admission. The kernel then writes `floor`, `lanes`, `admit`, `low`
-    /// (the hint), `strict`, `back_start` (`buffer_end`: the back tier
-    /// dropped) and `attention` (never again), as `raise_to_hint` would.
-    pub(crate) raise_floor: u32,
-    pub(crate) raise_lanes: u32,
-    pub(crate) raise_admit: i32,
-    /// The address after the candidate buffer's last entry.
-    pub(crate) buffer_end: usize,
+    pub(crate) room: u16,
+    /// `floor - 1` (a lane of `lanes`) for the admission `hint + 1`: see
+    /// `raise`.
+    pub(crate) raise_lane: u16,
 
     /// The candidate buffer's first entry.
     pub(crate) buffer: usize,
@@ -128,6 +118,14 @@ pub struct OpenWindow {
     pub(crate) finished: bool,
     /// Admission is `p > low` (see `select::Buffer::strict`).
     pub(crate) strict: bool,
+    /// When the front reaches `attention`, the row kernel raises admission
+    /// to just above the hint itself instead of stopping (`subtract-next`,
+    /// where reaching `attention` always proves the cutoff at or above the
+    /// hint: see `stream::admission::prepare_raise`): it writes `floor`
+    /// and `lanes` (from `raise_lane`), `admit` (`hint + 1`), `low` (the
+    /// hint), `strict`, `back_start` (the buffer's end: the back tier
+    /// dropped) and `attention` (never again), as `raise_to_hint` would.
+    pub(crate) raise: bool,
     /// `low` left out a needed pixel or the buffer could not be compacted:
     /// the window is computed again from the row history at its end.
     pub(crate) rescan: bool,
@@ -148,10 +146,7 @@ impl OpenWindow {
         back_start: 0,
         attention: 0,
         room: 0,
-        raise_floor: 0,
-        raise_lanes: 0,
-        raise_admit: 0,
-        buffer_end: 0,
+        raise_lane: 0,
         buffer: 0,
         capacity: 0,
         buffer_number: 0,
@@ -171,6 +166,7 @@ impl OpenWindow {
         floor: 0,
         finished: true,
         strict: false,
+        raise: false,
         rescan: false,
         bounds: WindowBounds::NONE,
         moments: Moments::ZERO,
@@ -290,3 +286,9 @@ pub(crate) enum SegmentPath {
     Candidates,
     General,
 }
+
+// The STM32H743 keeps 128 open windows in DTCM, budgeted to the byte
+// (boards/stm32h743/src/storage.rs): a field that grows the window state
+// goes in its padding or replaces another.
+#[cfg(target_pointer_width = "32")]
+const _: () = assert!(core::mem::size_of::<OpenWindow>() <= 136);

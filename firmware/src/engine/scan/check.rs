@@ -83,12 +83,11 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
                 w.admit = admit;
                 w.hint = hint;
                 w.position_base = (k as u32) << 6;
-                w.room = 8 * width as u32;
+                w.room = 8 * width;
                 // Half the windows raise admission in the kernel when the
                 // front reaches `attention`.
-                w.raise_floor = raise_floor;
-                w.raise_lanes = raise_floor.wrapping_sub(1).wrapping_mul(0x0001_0001);
-                w.raise_admit = hint + 1;
+                w.raise = raise_floor != 0;
+                w.raise_lane = raise_floor.wrapping_sub(1) as u16;
                 w.low = admit;
                 made = k + 1;
             }
@@ -114,7 +113,6 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
                 w.set_front(front.min(keep));
                 w.set_back(back.min(keep - front.min(keep)));
                 w.attention = start + attention * core::mem::size_of::<Entry>();
-                w.buffer_end = start + share * core::mem::size_of::<Entry>();
             }
         }
         for buffer in buffers.iter_mut() {

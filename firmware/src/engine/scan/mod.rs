@@ -233,7 +233,7 @@ pub unsafe fn row_portable<S: Steps, const CHECK: bool>(args: &mut RowScan) -> R
                     return RowStop::Attention(at);
                 }
                 if window.front_end >= window.attention {
-                    if window.raise_floor == 0 {
+                    if !window.raise {
                         return RowStop::Attention(at);
                     }
                     raise_admission(window);
@@ -246,16 +246,17 @@ pub unsafe fn row_portable<S: Steps, const CHECK: bool>(args: &mut RowScan) -> R
 }
 
 /// The kernel's raise of a window's admission to just above its hint, as
-/// prepared by the engine (`OpenWindow::raise_floor`, not 0): the back tier
-/// dropped, `low` the hint, strict admission, no further attention.
+/// prepared by the engine (`OpenWindow::raise`): the back tier dropped,
+/// `low` the hint, strict admission, no further attention.
 #[inline(always)]
 fn raise_admission(window: &mut OpenWindow) {
-    window.floor = window.raise_floor;
-    window.lanes = window.raise_lanes;
-    window.admit = window.raise_admit;
+    let lane = window.raise_lane as u32;
+    window.floor = lane + 1;
+    window.lanes = lane.wrapping_mul(0x0001_0001);
+    window.admit = window.hint + 1;
     window.low = window.hint;
     window.strict = true;
-    window.back_start = window.buffer_end;
+    window.back_start = window.buffer + window.capacity as usize * core::mem::size_of::<Entry>();
     window.attention = usize::MAX;
 }
 

@@ -138,20 +138,21 @@ pub(super) fn update_admission(window: &mut OpenWindow, config: &Config<'_>, max
 /// engine takes (`Engine::attend`).
 #[inline(always)]
 fn prepare_raise(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) {
-    let raise = config.selection.rule == SelectionRule::SubtractNext
+    let mut floor = 0;
+    // `hint + 1` must not overflow: the kernel adds without saturating.
+    if config.selection.rule == SelectionRule::SubtractNext
         && !window.strict
         && window.low_ties.count == 0
-        && window.capacity > 0;
-    let (admit, floor) = if raise {
-        let admit = window.hint.saturating_add(1);
-        let floor = raw_floor(&config.calibration, window.bounds, admit).min(max_raw as u32 + 1);
-        (admit, floor)
-    } else {
-        (0, 0)
-    };
-    window.raise_admit = admit;
-    window.raise_floor = floor;
-    window.raise_lanes = floor.wrapping_sub(1).wrapping_mul(0x0001_0001);
+        && window.capacity > 0
+        && window.hint < i32::MAX
+    {
+        floor =
+            raw_floor(&config.calibration, window.bounds, window.hint + 1).min(max_raw as u32 + 1);
+    }
+    // A raised floor is at most 2^16 (the camera's largest raw value + 1),
+    // so its lane `floor - 1` is a u16.
+    window.raise = floor != 0;
+    window.raise_lane = floor.wrapping_sub(1) as u16;
 }
 
 /// [`Tiers::covers_hint`] for an open window: its front holds the pixels

@@ -79,10 +79,7 @@ impl Engine<'_, '_> {
                 back_start,
                 attention: window_attention,
                 room,
-                raise_floor,
-                raise_lanes,
-                raise_admit,
-                buffer_end,
+                raise_lane,
                 buffer: window_buffer,
                 capacity: window_capacity,
                 buffer_number,
@@ -102,6 +99,7 @@ impl Engine<'_, '_> {
                 floor,
                 finished,
                 strict,
+                raise,
                 rescan,
                 bounds,
                 moments,
@@ -117,11 +115,8 @@ impl Engine<'_, '_> {
             *front_end = buffer;
             *back_start = buffer + capacity as usize * core::mem::size_of::<Entry>();
             *window_attention = usize::MAX;
-            *room = 8 * w.width as u32;
-            *raise_floor = 0;
-            *raise_lanes = 0;
-            *raise_admit = 0;
-            *buffer_end = buffer + capacity as usize * core::mem::size_of::<Entry>();
+            *room = 8 * w.width;
+            *raise_lane = 0;
             *window_buffer = buffer;
             *window_capacity = capacity;
             *buffer_number = number;
@@ -141,6 +136,7 @@ impl Engine<'_, '_> {
             *floor = 0;
             *finished = false;
             *strict = false;
+            *raise = false;
             *rescan = false;
             *bounds = state.bounds;
             *moments = Moments::ZERO;
