@@ -274,10 +274,30 @@ impl FitsImage {
     }
 }
 
+/// The most values [`read_array`] reads (512 MiB as `f64`): maps and
+/// tables are at most a camera (2048 x 2048, PROTOCOL.md) or a few per
+/// sub-aperture, and a header may claim any shape (a compressed image's
+/// data need not be in the file), so the shape is checked before the
+/// allocation (found by fuzz/'s fits_reader: a 2.7 GB allocation).
+const MAX_ARRAY_VALUES: usize = 1 << 26;
+
 /// A whole image as `f64` (maps and other arrays).
 pub(crate) fn read_array(path: &Path) -> Result<super::Array, IoError> {
     let mut image = open_image(path, None)?;
-    let count = image.shape.iter().product();
+    let count = image
+        .shape
+        .iter()
+        .try_fold(1usize, |n, &d| n.checked_mul(d))
+        .filter(|&n| n <= MAX_ARRAY_VALUES)
+        .ok_or_else(|| {
+            IoError::malformed(
+                path,
+                format!(
+                    "{}: its shape {:?} holds more values than a map or table brightpix reads whole ({MAX_ARRAY_VALUES})",
+                    image.describe, image.shape
+                ),
+            )
+        })?;
     let mut data = Vec::new();
     image.read(path, 0, count, &mut data)?;
     Ok(super::Array {

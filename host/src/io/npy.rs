@@ -109,18 +109,28 @@ fn check_prefix(path: &Path, file: &mut File) -> Result<(u64, u64), IoError> {
         ));
     }
     // A header is one flat dictionary (descr, fortran_order, shape). The
-    // reader's literal parser backtracks exponentially on nested braces (a
-    // 126-byte header of 22 '{' took over 10 s: fuzz/'s npy_reader), so a
-    // header with more than one is refused before it is parsed.
+    // reader's literal parser backtracks exponentially on nesting (a
+    // 126-byte header of 22 '{' took over 10 s, and one of 55 '[' as long:
+    // fuzz/'s npy_reader), so a header with more than one brace, more than
+    // one parenthesis (the shape's tuple) or any bracket (a structured
+    // dtype's list, which no reader here takes) is refused before it is
+    // parsed.
     let mut header = vec![0u8; header_len.min(1 << 16) as usize];
     file.seek(std::io::SeekFrom::Start(header_start))
         .map_err(io)?;
     file.read_exact(&mut header).map_err(io)?;
     file.seek(std::io::SeekFrom::Start(0)).map_err(io)?;
-    if header.iter().filter(|&&b| b == b'{').count() > 1 {
+    let count = |c: u8| header.iter().filter(|&&b| b == c).count();
+    if count(b'{') > 1 {
         return Err(IoError::malformed(
             path,
             "the .npy header is not one flat dictionary (nested braces)",
+        ));
+    }
+    if count(b'[') > 0 || count(b'(') > 1 {
+        return Err(IoError::malformed(
+            path,
+            "the .npy header is not one flat dictionary of a plain dtype and a shape (nested brackets)",
         ));
     }
     Ok((header_start + header_len, len))
@@ -306,6 +316,24 @@ mod tests {
         assert!(e.to_string().contains("nested braces"), "{e}");
         let e = read_frames(&path).unwrap_err();
         assert!(e.to_string().contains("nested braces"), "{e}");
+        // Not a timed assertion of speed: a hang guard far above any machine.
+        assert!(started.elapsed().as_secs() < 5);
+    }
+
+    /// Found by the npy_reader fuzz target after the test above: 55 '['
+    /// in the header took the header parser over 10 s; refused at once.
+    #[test]
+    fn nested_brackets_in_the_header_are_refused() {
+        use base64_free::decode;
+        let bytes = decode("k05VTVBZAQB2AHsnZGVzY3YnOiAnPGk0JyxbW1tbW1tbW1tbW1tbW1tbW1tbW1tbW1tbW1tbW1tbW1tbW1tbW1tbW1tbW1tbW1tbW1tbWyAnZm9ydHJhbl9vcmRlcic6IEZhbHNlLCAnc2hkVHJ1ZWVyJzogRmFsc2UsICdzaGFwZW9ydHJhbl9vcmRlcic6IEZhbFxcXDogc2hhcGUnOiAoMiwgMiwgKSwgfSAgICAgICAgICAgICAg////////////////////////////////////////////////////////////////////SP8gICAgIAr/////AgAAAHARAQAEAAAA");
+        let dir = temp_dir("brackets");
+        let path = dir.join("brackets.npy");
+        std::fs::write(&path, bytes).unwrap();
+        let started = std::time::Instant::now();
+        let e = read_array(&path).unwrap_err();
+        assert!(e.to_string().contains("nested brackets"), "{e}");
+        let e = read_frames(&path).unwrap_err();
+        assert!(e.to_string().contains("nested brackets"), "{e}");
         // Not a timed assertion of speed: a hang guard far above any machine.
         assert!(started.elapsed().as_secs() < 5);
     }

@@ -230,3 +230,16 @@ fn missing_file_names_path() {
         "{err}"
     );
 }
+
+/// Found by the fits_reader fuzz target: a header whose shape claims 2.7 GB
+/// of values was allocated before anything was read; the shape is refused.
+#[test]
+fn a_fits_shape_beyond_any_map_is_refused_before_allocating() {
+    let seed = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../fuzz/seeds/fits_reader/finding-huge-shape-oom");
+    let dir = temp_dir("fits-huge-shape");
+    let path = dir.join("huge.fits");
+    std::fs::copy(&seed, &path).unwrap();
+    let e = read_array(&path).unwrap_err();
+    assert!(e.to_string().contains("more values than a map"), "{e}");
+}
