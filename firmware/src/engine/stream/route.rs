@@ -95,28 +95,8 @@ impl Engine<'_, '_> {
         &mut self,
         row_address: usize,
     ) -> Option<(usize, usize)> {
-        const SIZE: usize = core::mem::size_of::<OpenWindow>();
-        self.scan.row = row_address;
-        self.scan.bg_delta = self.bg_row.wrapping_sub(2 * row_address).wrapping_sub(16);
-        self.scan.position_delta = self
-            .position_row
-            .wrapping_sub(4)
-            .wrapping_sub((row_address >> 1) as u32);
         let first = self.scan.first;
-        let stopped = loop {
-            // SAFETY: every open window is kernel-ready and its segment
-            // lies in the row the caller holds.
-            match unsafe { scan::row::<S, CHECK>(&mut self.scan) } {
-                RowStop::Done => break None,
-                RowStop::Attention(address) => {
-                    self.attend((address - first) / SIZE);
-                    self.scan.first = address + SIZE;
-                }
-                RowStop::OutOfRange { window, pixel } => {
-                    break Some(((window - first) / SIZE, pixel))
-                }
-            }
-        };
+        let stopped = self.kernel_pass::<S, CHECK>(row_address, first);
         self.scan.first = first;
         stopped
     }
@@ -133,31 +113,45 @@ impl Engine<'_, '_> {
     ) -> Option<(usize, usize)> {
         const SIZE: usize = core::mem::size_of::<OpenWindow>();
         let (first, all) = (self.scan.first, self.scan.end);
+        self.scan.first = first + k * SIZE;
+        self.scan.end = first + end * SIZE;
+        let stopped = self.kernel_pass::<S, CHECK>(row_address, first);
+        self.scan.first = first;
+        self.scan.end = all;
+        stopped
+    }
+
+    /// The kernel's calls over its window range for the row at
+    /// `row_address`, attending to the windows it stops at; window indices
+    /// are counted from `first`, the open windows' first. Leaves
+    /// `scan.first` past the last window attended.
+    #[inline(always)]
+    fn kernel_pass<S: Steps, const CHECK: bool>(
+        &mut self,
+        row_address: usize,
+        first: usize,
+    ) -> Option<(usize, usize)> {
+        const SIZE: usize = core::mem::size_of::<OpenWindow>();
         self.scan.row = row_address;
         self.scan.bg_delta = self.bg_row.wrapping_sub(2 * row_address).wrapping_sub(16);
         self.scan.position_delta = self
             .position_row
             .wrapping_sub(4)
             .wrapping_sub((row_address >> 1) as u32);
-        self.scan.first = first + k * SIZE;
-        self.scan.end = first + end * SIZE;
-        let stopped = loop {
-            // SAFETY: the windows `k .. end` are kernel-ready and their
-            // segments lie in the part of the row the caller holds.
+        loop {
+            // SAFETY: the windows of the kernel's range are kernel-ready
+            // and their segments lie in the row the caller holds.
             match unsafe { scan::row::<S, CHECK>(&mut self.scan) } {
-                RowStop::Done => break None,
+                RowStop::Done => return None,
                 RowStop::Attention(address) => {
                     self.attend((address - first) / SIZE);
                     self.scan.first = address + SIZE;
                 }
                 RowStop::OutOfRange { window, pixel } => {
-                    break Some(((window - first) / SIZE, pixel))
+                    return Some(((window - first) / SIZE, pixel))
                 }
             }
-        };
-        self.scan.first = first;
-        self.scan.end = all;
-        stopped
+        }
     }
 
     /// A pixel out of range in window `k`'s segment of a gapless row: the
