@@ -69,8 +69,9 @@ struct PlanArgs {
     /// The camera's frame rate, Hz: each board's load, and the fewest boards that keep up.
     #[arg(long, value_name = "HZ")]
     camera_rate: Option<f64>,
-    /// Instructions per pixel measured for this configuration (`brightpix bench --config`)
-    /// instead of the model fitted to the bench's tables.
+    /// Instructions per pixel measured for this configuration on whole rows (`brightpix bench
+    /// --config`) instead of the model fitted to the bench's tables; the board's camera interface
+    /// is added (stm32h743: its 12-bit DCMI runs, +1.38).
     #[arg(long, value_name = "X")]
     instr_per_px: Option<f64>,
     /// Write the rig here (rig.toml); without it the file is printed.
@@ -165,7 +166,7 @@ pub fn run(args: RigArgs) -> Result<()> {
 fn model_for(kind: BoardKind, instr_per_px: Option<f64>) -> Result<CostModel> {
     let model = kind.cost_model();
     Ok(match instr_per_px {
-        Some(x) if x.is_finite() && x > 0.0 => CostModel::flat(x, model.last_row_per_window),
+        Some(x) if x.is_finite() && x > 0.0 => CostModel::flat(x, &model),
         Some(x) => bail!("--instr-per-px {x}: must be a positive number"),
         None => model,
     })

@@ -40,11 +40,22 @@ pub const DCMI_MAX_PIXEL_CLOCK_HZ: f64 = 80.0e6;
 /// configuration unlike these (another N, 32x32 windows, heavy noise) costs
 /// up to ~20% more or less: `brightpix bench --config` measures it, and
 /// `rig plan --instr-per-px` takes that figure instead.
+///
+/// A board whose camera interface hands the engine something other than
+/// whole 16-bit rows pays for it: the STM32H743's DCMI delivers 12-bit
+/// pixels packed in 512-pixel DMA runs, which the board unpacks as they
+/// arrive ([`CostModel::STM32H743`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CostModel {
     pub per_pixel: f64,
     pub per_window: f64,
     pub last_row_per_window: f64,
+    /// Per captured pixel, the board's camera interface beyond whole
+    /// 16-bit rows (unpacking its DMA runs); 0 for pixels in rows.
+    pub camera_per_pixel: f64,
+    /// After the frame's last pixel, whatever the windows: the camera
+    /// interface's last piece (a board's last DMA run).
+    pub last_row_per_frame: f64,
 }
 
 impl CostModel {
@@ -52,6 +63,12 @@ impl CostModel {
     pub const CORTEX_M4: CostModel = CostModel::fit(15.32, 37.15, 8667.0);
     /// Cortex-M7: CANARY 15.10 instr/px, 8x8 windows 36.23, last row 8,405.
     pub const CORTEX_M7: CostModel = CostModel::fit(15.10, 36.23, 8405.0);
+    /// The STM32H743 (Cortex-M7) with its DCMI's 12-bit runs: the bench's
+    /// `canary-12bit-runs-512` row (16.48 instr/px, last row 9,454) against
+    /// its whole-row CANARY (15.10, 8,405) adds 1.38 instructions a pixel
+    /// and 1,049 after the last pixel to the Cortex-M7's model.
+    pub const STM32H743: CostModel =
+        CostModel::CORTEX_M7.with_camera_runs(15.10, 8405.0, 16.48, 9454.0);
 
     /// The model through the bench's two rows (see the type's documentation).
     pub const fn fit(canary: f64, windows_8x8: f64, canary_last_row: f64) -> CostModel {
@@ -61,23 +78,49 @@ impl CostModel {
             per_pixel: (canary * pixels - 49.0 * per_window) / pixels,
             per_window,
             last_row_per_window: canary_last_row / 7.0,
+            camera_per_pixel: 0.0,
+            last_row_per_frame: 0.0,
+        }
+    }
+
+    /// This model for a board whose camera interface costs what the
+    /// bench's camera-run row shows against its whole-row CANARY row (same
+    /// core, same run): the difference per pixel, and after the last pixel.
+    pub const fn with_camera_runs(
+        self,
+        canary: f64,
+        canary_last_row: f64,
+        runs: f64,
+        runs_last_row: f64,
+    ) -> CostModel {
+        CostModel {
+            camera_per_pixel: self.camera_per_pixel + (runs - canary),
+            last_row_per_frame: self.last_row_per_frame + (runs_last_row - canary_last_row),
+            ..self
         }
     }
 
     /// A flat `instr_per_px` for every captured pixel (a figure
-    /// `brightpix bench --config` measured for the configuration itself).
-    pub fn flat(instr_per_px: f64, last_row_per_window: f64) -> CostModel {
+    /// `brightpix bench --config` measured for the configuration itself,
+    /// on whole rows), with `model`'s camera interface and last row.
+    pub fn flat(instr_per_px: f64, model: &CostModel) -> CostModel {
         CostModel {
             per_pixel: instr_per_px,
             per_window: 0.0,
-            last_row_per_window,
+            ..*model
         }
+    }
+
+    /// Instructions after a frame's last pixel on a board with
+    /// `windows_in_last_row` windows ending in its last row.
+    pub fn last_row_instructions(&self, windows_in_last_row: usize) -> f64 {
+        self.last_row_per_window * windows_in_last_row as f64 + self.last_row_per_frame
     }
 
     /// Instructions per frame of a board capturing `pixels` and computing
     /// `windows` windows.
     pub fn frame_instructions(&self, pixels: usize, windows: usize) -> f64 {
-        self.per_pixel * pixels as f64 + self.per_window * windows as f64
+        (self.per_pixel + self.camera_per_pixel) * pixels as f64 + self.per_window * windows as f64
     }
 }
 
@@ -122,8 +165,9 @@ impl BoardKind {
 
     pub fn cost_model(self) -> CostModel {
         match self {
+            BoardKind::Stm32h743 => CostModel::STM32H743,
             BoardKind::QemuM4 => CostModel::CORTEX_M4,
-            BoardKind::Stm32h743 | BoardKind::QemuM7 => CostModel::CORTEX_M7,
+            BoardKind::QemuM7 => CostModel::CORTEX_M7,
         }
     }
 
@@ -420,7 +464,7 @@ pub fn loads(
             let instructions = model.frame_instructions(s.rectangle.pixels(), s.windows.len());
             BoardLoad {
                 instructions_per_frame: instructions,
-                last_row_instructions: model.last_row_per_window * in_last_row as f64,
+                last_row_instructions: model.last_row_instructions(in_last_row),
                 load: camera_rate
                     .zip(kind.clock_mhz())
                     .map(|(rate, mhz)| instructions * rate / (mhz * 1e6)),
@@ -497,7 +541,20 @@ mod tests {
             let (canary, last_row) = row("canary-subtract-next-n20");
             let (small, _) = row("windows-8x8-n20");
             assert_eq!(model, CostModel::fit(canary, small, last_row), "{file}");
+            if file == "cortex-m7.txt" {
+                let (runs, runs_last_row) = row("canary-12bit-runs-512");
+                assert_eq!(
+                    CostModel::STM32H743,
+                    model.with_camera_runs(canary, last_row, runs, runs_last_row),
+                );
+            }
         }
+        // The board's model reproduces its own row.
+        let h = CostModel::STM32H743;
+        assert!((h.frame_instructions(12544, 49) / 12544.0 - 16.48).abs() < 1e-9);
+        assert!((h.last_row_instructions(7) - 9454.0).abs() < 1e-6);
+        assert_eq!(BoardKind::Stm32h743.cost_model(), h);
+        assert_eq!(BoardKind::QemuM7.cost_model(), CostModel::CORTEX_M7);
         // The fit reproduces both rows.
         let m = CostModel::CORTEX_M7;
         assert!((m.frame_instructions(12544, 49) / 12544.0 - 15.10).abs() < 1e-9);
