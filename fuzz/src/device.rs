@@ -15,8 +15,8 @@ use brightpix::sim_device::{HeapDeviceStorage, SimSizes};
 use brightpix_firmware::device::embedded_io_async::{ErrorType, Read, Write};
 use brightpix_firmware::device::{vet, Device, LinkOnly};
 use brightpix_protocol::wire::{
-    decode, encode, Ack, DeviceMessage, FrameReader, Hello, HostMessage, PixelRowsPlan, Received,
-    Table, UploadPlan, MAX_CHUNK_BYTES, MAX_FRAME_LEN, MAX_PIXEL_BYTES,
+    decode, encode, Ack, CaptureStart, DeviceMessage, FrameReader, Hello, HostMessage,
+    PixelRowsPlan, Received, Table, UploadPlan, MAX_CHUNK_BYTES, MAX_FRAME_LEN, MAX_PIXEL_BYTES,
 };
 use brightpix_protocol::{Camera, LevelFilter, SelectionRule, SubapertureWindow};
 
@@ -284,7 +284,14 @@ pub fn device_loop(data: &[u8]) {
                     0 => HostMessage::StatusRequest,
                     1 => HostMessage::ConfigAbort,
                     2 => HostMessage::ResetLevelFilters,
-                    3 => HostMessage::Capture { frames: b.u32() },
+                    3 => HostMessage::Capture {
+                        frames: b.u32(),
+                        start: [
+                            CaptureStart::Immediate,
+                            CaptureStart::OnSync,
+                            CaptureStart::DriveSync,
+                        ][usize::from(b.u8() % 3)],
+                    },
                     4 => HostMessage::StopCapture,
                     5 => HostMessage::ConfigCommit {
                         upload_id: b.u32(),

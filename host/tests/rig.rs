@@ -13,7 +13,11 @@ use brightpix::io::write_array;
 use brightpix::link::Client;
 use brightpix::reference::Reference;
 use brightpix::rig::{self, BoardKind, CostModel, Rig, RigStartError};
-use brightpix::sim_device::{CameraOptions, CameraSpec, InProcessDevice, InProcessOptions};
+use std::sync::Arc;
+
+use brightpix::sim_device::{
+    CameraOptions, CameraSpec, InProcessDevice, InProcessOptions, SharedCamera,
+};
 use brightpix_protocol::wire::tables::config_digest;
 use brightpix_protocol::{Camera, RegularGrid};
 
@@ -347,12 +351,18 @@ fn batches_go_on_without_a_board_that_disappeared() {
     check_present(&rig, &frames, &merged);
 }
 
-/// `rig capture`: three in-process boards, each with its own simulated
-/// camera of one seed (one camera's bus fanned out), each configured with
-/// its rectangle as its crop: their cameras make the whole 48x48 sensor
-/// and each keeps its band of rows. The merge equals the whole-camera
-/// reference bit for bit. A board whose pixels come from the host is
-/// refused before any work.
+/// `rig capture`: three in-process boards on one simulated camera (one
+/// timeline of frames and one sync line, `SharedCamera`), each configured
+/// with its rectangle as its crop: the camera makes the whole 48x48 sensor
+/// and each keeps its band of rows. Board 1's start comes three frame
+/// periods late (the shared camera's test knob: USB latency). Without a
+/// sync line in rig.toml the capture warns, the boards begin on different
+/// camera frames, and `--verify` finds the merge differs from the
+/// whole-camera reference; with `[sync]` the followers are armed first,
+/// the leader raises the line after a frame start, every board begins on
+/// the frame after it, and the merge equals the reference bit for bit.
+/// A board whose pixels come from the host, or whose camera has no sync
+/// line, is refused.
 #[test]
 fn capture_with_three_boards_each_cropping_one_camera() {
     let dir = common::scratch("rig", "capture");
@@ -376,13 +386,23 @@ fn capture_with_three_boards_each_cropping_one_camera() {
         rig_file.to_str().unwrap(),
     ]);
     assert!(ok, "{text}");
+    let plain_rig = std::fs::read_to_string(&rig_file).unwrap();
+    assert!(plain_rig.contains("# [sync]"), "{plain_rig}");
+    let synced_file = dir.join("rig-sync.toml");
+    std::fs::write(
+        &synced_file,
+        plain_rig.replace("# [sync]\n# leader", "[sync]\nleader"),
+    )
+    .unwrap();
+    let camera = Arc::new(
+        SharedCamera::new(CameraSpec { seed: 4 }, 100)
+            .with_sync_line()
+            .with_start_delays(vec![0, 3, 0]),
+    );
     let devices: Vec<InProcessDevice> = (0..3)
-        .map(|_| {
+        .map(|b| {
             InProcessDevice::start(InProcessOptions {
-                camera: Some(CameraOptions {
-                    spec: CameraSpec { seed: 4 },
-                    fps: 100,
-                }),
+                camera: Some(camera.board(b)),
                 ..InProcessOptions::default()
             })
             .unwrap()
@@ -390,45 +410,92 @@ fn capture_with_three_boards_each_cropping_one_camera() {
         .collect();
     let ports: Vec<&str> = devices.iter().map(|d| d.port()).collect();
     let ports = ports.join(",");
+    // With --verify --seed 4 unless `extra` gives another seed.
+    let capture = |rig: &std::path::Path, extra: &[&str]| {
+        let mut args = vec![
+            "rig",
+            "capture",
+            "--rig",
+            rig.to_str().unwrap(),
+            "--ports",
+            &ports,
+            "--verify",
+        ];
+        if !extra.contains(&"--seed") {
+            args.extend(["--seed", "4"]);
+        }
+        args.extend_from_slice(extra);
+        run(&args)
+    };
+
+    // No sync line: a warning, different first camera frames, a merge
+    // that does not verify.
+    let (ok, text) = capture(&rig_file, &["--count", "30"]);
+    assert!(!ok, "{text}");
+    assert!(
+        text.contains("start without a sync line")
+            && text.contains("began on different camera frames")
+            && text.contains("differ from the whole-camera reference"),
+        "{text}"
+    );
+    let (ok, text) = capture(&rig_file, &["--count", "3", "--start", "sync"]);
+    assert!(
+        !ok && text.contains("the rig declares no sync line"),
+        "{text}"
+    );
+
+    // On the sync line: aligned, bit for bit.
     let out = dir.join("merged.npy");
-    let (ok, text) = run(&[
-        "rig",
-        "capture",
-        "--rig",
-        rig_file.to_str().unwrap(),
-        "--ports",
-        &ports,
-        "--count",
-        "30",
-        "--verify",
-        "--seed",
-        "4",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let (ok, text) = capture(
+        &synced_file,
+        &["--count", "30", "--out", out.to_str().unwrap()],
+    );
     assert!(ok, "{text}");
     assert!(
         text.contains("30 complete")
             && text.contains("verified: 30 merged frames, 270 sub-aperture results")
-            && text.contains(": 0 mismatches"),
+            && text.contains(": 0 mismatches")
+            && text.matches("(the first after the sync edge)").count() == 3
+            && !text.contains("without a sync line")
+            && !text.contains("different camera frames"),
         "{text}"
     );
     assert!(out.exists());
     // Another seed on the boards' camera than --verify's: every frame differs.
+    let (ok, text) = capture(&synced_file, &["--count", "3", "--seed", "5"]);
+    assert!(!ok && text.contains("differ"), "{text}");
+    // `--start immediate` on a rig with a sync line: the same misalignment.
+    let (ok, text) = capture(&synced_file, &["--count", "10", "--start", "immediate"]);
+    assert!(
+        !ok && text.contains("began on different camera frames"),
+        "{text}"
+    );
+    // A board whose camera has no sync line (a camera of its own).
+    let lone = InProcessDevice::start(InProcessOptions {
+        camera: Some(CameraOptions::own(CameraSpec { seed: 4 }, 100)),
+        ..InProcessOptions::default()
+    })
+    .unwrap();
+    let ports_lone = format!(
+        "{},{},{}",
+        devices[0].port(),
+        lone.port(),
+        devices[2].port()
+    );
     let (ok, text) = run(&[
         "rig",
         "capture",
         "--rig",
-        rig_file.to_str().unwrap(),
+        synced_file.to_str().unwrap(),
         "--ports",
-        &ports,
+        &ports_lone,
         "--count",
         "3",
-        "--verify",
-        "--seed",
-        "5",
     ]);
-    assert!(!ok && text.contains("differ"), "{text}");
+    assert!(
+        !ok && text.contains("the device has no sync line"),
+        "{text}"
+    );
     // A board without a camera of its own.
     let plain = InProcessDevice::start_pty().unwrap();
     let ports = format!(
@@ -496,10 +563,7 @@ fn a_boards_part_is_a_configuration_file_of_its_own() {
     }
     // The middle band alone, captured from a camera of the whole sensor.
     let device = InProcessDevice::start(InProcessOptions {
-        camera: Some(CameraOptions {
-            spec: CameraSpec { seed: 4 },
-            fps: 100,
-        }),
+        camera: Some(CameraOptions::own(CameraSpec { seed: 4 }, 100)),
         ..InProcessOptions::default()
     })
     .unwrap();

@@ -92,9 +92,10 @@ pub fn link_error(e: LinkError) -> PyErr {
         LinkError::Open { error: source, .. } | LinkError::Fifo { source, .. } => {
             io_error(source.kind(), message)
         }
-        LinkError::NoHello { .. } | LinkError::Timeout { .. } | LinkError::WriteStalled { .. } => {
-            PyTimeoutError::new_err(message)
-        }
+        LinkError::NoHello { .. }
+        | LinkError::Timeout { .. }
+        | LinkError::NoSyncEdge { .. }
+        | LinkError::WriteStalled { .. } => PyTimeoutError::new_err(message),
         LinkError::Disconnected { .. } => PyConnectionError::new_err(message),
         LinkError::Usage(_) => PyValueError::new_err(message),
         _ => DeviceError::new_err(message),

@@ -243,10 +243,26 @@ fn host_messages(payload: &[u8]) -> Vec<(&'static str, HostMessage<'_>)> {
             },
         ),
         (
-            "capture until StopCapture",
-            HostMessage::Capture { frames: 0 },
+            "capture until StopCapture, from the next frame start",
+            HostMessage::Capture {
+                frames: 0,
+                start: CaptureStart::Immediate,
+            },
         ),
-        ("capture 1000 frames", HostMessage::Capture { frames: 1000 }),
+        (
+            "capture 1000 frames from the first frame start after the sync line's next rising edge (a follower)",
+            HostMessage::Capture {
+                frames: 1000,
+                start: CaptureStart::OnSync,
+            },
+        ),
+        (
+            "capture 1000 frames, raising the sync line after a frame start (the leader)",
+            HostMessage::Capture {
+                frames: 1000,
+                start: CaptureStart::DriveSync,
+            },
+        ),
         ("", HostMessage::StopCapture),
         (
             "every workload the board has, each its own count of frames",
@@ -481,6 +497,20 @@ fn device_messages() -> Vec<(&'static str, DeviceMessage<'static>)> {
             count: 49,
         },
     ));
+    all.push((
+        "frame 0 began on the first frame start after the sync edge, camera frame 1234",
+        DeviceMessage::CaptureBegan {
+            synced: true,
+            camera_frame: Some(1234),
+        },
+    ));
+    all.push((
+        "frame 0 began without a sync edge; the camera does not number its frames",
+        DeviceMessage::CaptureBegan {
+            synced: false,
+            camera_frame: None,
+        },
+    ));
     for ack in [
         Ack::UploadStarted {
             upload_id: 0x0102_0304,
@@ -653,6 +683,8 @@ fn device_messages() -> Vec<(&'static str, DeviceMessage<'static>)> {
         DeviceError::Bench(BenchFault::UploadInProgress),
         DeviceError::Bench(BenchFault::UnknownWorkload),
         DeviceError::Bench(BenchFault::TooManyFrames { max: 64 }),
+        DeviceError::Sync(SyncFault::NoSyncLine),
+        DeviceError::Sync(SyncFault::LineHigh),
         DeviceError::Unexpected {
             message: MessageKind::Bench,
         },
@@ -895,6 +927,7 @@ fn every_vector_decodes_to_its_message() {
         "Status",
         "Slopes",
         "FrameDone",
+        "CaptureBegan",
         "BenchReport",
     ] {
         assert!(

@@ -64,6 +64,10 @@ impl HostSide for Link {
                     }
                     DeviceMessage::FrameDone { frame, count } => Reply::FrameDone(frame, count),
                     DeviceMessage::BenchReport(r) => panic!("a bench report: {r:?}"),
+                    DeviceMessage::CaptureBegan {
+                        synced,
+                        camera_frame,
+                    } => Reply::Began(synced, camera_frame),
                 });
             }
         }
@@ -78,6 +82,7 @@ enum Reply {
     Error(DeviceError),
     Status(Status),
     Slopes(u32, Vec<SlopeEntry>),
+    Began(bool, Option<u32>),
     FrameDone(u32, u32),
 }
 
@@ -184,7 +189,10 @@ fn capture_session(
     while let Some(m) = plan.next(&mut scratch) {
         link.send(&m);
     }
-    link.send(&HostMessage::Capture { frames: capture });
+    link.send(&HostMessage::Capture {
+        frames: capture,
+        start: brightpix_protocol::wire::CaptureStart::Immediate,
+    });
 
     let mut stall = stall;
     let mut rng = Rng::new(17);
@@ -296,6 +304,18 @@ fn capture_streams_slopes_equal_to_a_direct_engine_run() {
         .collect();
     assert!(acks.contains(&Ack::CaptureStarted { frames: 6 }));
     assert!(acks.contains(&Ack::CaptureStopped { frames: 6 }));
+    // One `CaptureBegan` before any result: not on a sync edge, and a DCMI
+    // cannot number the camera's frames.
+    let began: Vec<usize> = (0..replies.len())
+        .filter(|&k| matches!(replies[k], Reply::Began(..)))
+        .collect();
+    let first_result = replies
+        .iter()
+        .position(|r| matches!(r, Reply::Slopes(..)))
+        .unwrap();
+    assert_eq!(began.len(), 1, "{replies:?}");
+    assert_eq!(replies[began[0]], Reply::Began(false, None));
+    assert!(began[0] < first_result);
     let done = done_frames(&replies);
     assert_eq!(
         done.iter().map(|d| d.0).collect::<Vec<_>>(),

@@ -29,6 +29,7 @@ fn poll_run<S: PixelSource>(source: &mut S) -> Option<(u32, u32, Vec<u16>)> {
             frame,
             first_pixel,
             pixels,
+            ..
         }) => Some((frame, first_pixel, pixels.to_vec())),
         Poll::Pending => None,
     }

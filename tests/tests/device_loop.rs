@@ -11,15 +11,17 @@ use std::task::Poll;
 
 use brightpix_firmware::device::embedded_io_async::{ErrorType, Read};
 use brightpix_firmware::device::{
-    CameraRefused, Device, LinkError, LinkOnly, PixelRowsStream, PixelRun, PixelSource,
+    CameraRefused, CaptureBegin, Device, LinkError, LinkOnly, PixelRowsStream, PixelRun,
+    PixelSource,
 };
 use brightpix_firmware::engine::SubapertureResult;
 use brightpix_protocol::wire::tables::write_table;
 use brightpix_protocol::wire::{
-    decode, encode, Ack, CapacityKind, ConfigFault, ConfigHeader, DeviceError, DeviceMessage,
-    FrameFault, FrameReader, Hello, HostMessage, PixelRowsPlan, PixelSourceKind, Received,
-    ResetReason, SlopeEntry, Status, Table, TablePosition, UploadPlan, CRC32, MAX_CHUNK_BYTES,
-    MAX_FRAME_LEN, MAX_PIXEL_BYTES, PROTOCOL_VERSION, SCHEMA_HASH, SLOPES_PER_MESSAGE,
+    decode, encode, Ack, CapacityKind, CaptureStart, ConfigFault, ConfigHeader, DeviceError,
+    DeviceMessage, FrameFault, FrameReader, Hello, HostMessage, PixelRowsPlan, PixelSourceKind,
+    Received, ResetReason, SlopeEntry, Status, SyncFault, Table, TablePosition, UploadPlan, CRC32,
+    MAX_CHUNK_BYTES, MAX_FRAME_LEN, MAX_PIXEL_BYTES, PROTOCOL_VERSION, SCHEMA_HASH,
+    SLOPES_PER_MESSAGE,
 };
 use brightpix_protocol::{
     Camera, Config, ConfigError, Crop, LevelFilter, MemoryKind, RegularGrid, SelectionRule,
@@ -74,6 +76,10 @@ enum Reply {
         count: u32,
     },
     Bench(brightpix::link::BenchRow),
+    Began {
+        synced: bool,
+        camera_frame: Option<u32>,
+    },
 }
 
 impl From<DeviceMessage<'_>> for Reply {
@@ -96,6 +102,13 @@ impl From<DeviceMessage<'_>> for Reply {
             },
             DeviceMessage::FrameDone { frame, count } => Reply::FrameDone { frame, count },
             DeviceMessage::BenchReport(r) => Reply::Bench(brightpix::link::BenchRow::of(&r)),
+            DeviceMessage::CaptureBegan {
+                synced,
+                camera_frame,
+            } => Reply::Began {
+                synced,
+                camera_frame,
+            },
         }
     }
 }
@@ -1090,7 +1103,10 @@ fn unconfigured_device_refuses_pixels() {
         pixels: &[0; 8],
     });
     host.send(&HostMessage::ResetLevelFilters);
-    host.send(&HostMessage::Capture { frames: 1 });
+    host.send(&HostMessage::Capture {
+        frames: 1,
+        start: CaptureStart::Immediate,
+    });
     run(&mut device);
     let replies = host.replies();
     assert_eq!(
@@ -1155,13 +1171,36 @@ fn level_filters_reset_on_request() {
 // --- a device with its own camera --------------------------------------------------
 
 /// A camera that delivers `frames` a row at a time once started, then
-/// closes the link.
+/// closes the link. With a sync line it arms on the first poll after its
+/// start (as a simulated camera's producer does, later than the request),
+/// and records how many bytes the device had sent by then.
 struct TestCamera {
     frames: Vec<Vec<u16>>,
     width: usize,
     started: bool,
     next: usize,
     link: Rc<RefCell<LinkState>>,
+    sync_line: bool,
+    start: CaptureStart,
+    armed: bool,
+    /// The device's output when the camera armed.
+    sent_before_arming: Option<Vec<u8>>,
+}
+
+impl TestCamera {
+    fn new(frames: Vec<Vec<u16>>, link: Rc<RefCell<LinkState>>, sync_line: bool) -> Self {
+        TestCamera {
+            frames,
+            width: CAMERA.width as usize,
+            started: false,
+            next: 0,
+            link,
+            sync_line,
+            start: CaptureStart::Immediate,
+            armed: false,
+            sent_before_arming: None,
+        }
+    }
 }
 
 impl PixelSource for TestCamera {
@@ -1169,11 +1208,24 @@ impl PixelSource for TestCamera {
         PixelSourceKind::Camera
     }
 
+    fn set_start(&mut self, start: CaptureStart) -> Result<(), SyncFault> {
+        if start != CaptureStart::Immediate && !self.sync_line {
+            return Err(SyncFault::NoSyncLine);
+        }
+        self.start = start;
+        Ok(())
+    }
+
+    fn armed(&self) -> bool {
+        self.armed
+    }
+
     fn start(&mut self, camera: Camera, _crop: Option<Crop>) -> Result<(), CameraRefused> {
         if camera.width as usize != self.width {
             return Err(CameraRefused);
         }
         self.started = true;
+        self.armed = self.start == CaptureStart::Immediate;
         Ok(())
     }
 
@@ -1183,6 +1235,16 @@ impl PixelSource for TestCamera {
     }
 
     async fn next(&mut self) -> PixelRun<'_> {
+        if self.started && !self.armed {
+            self.armed = true;
+            self.sent_before_arming = Some(self.link.borrow().output.clone());
+            return PixelRun {
+                frame: 0,
+                first_pixel: 0,
+                pixels: &[],
+                began: None,
+            };
+        }
         let frame_len = self.frames[0].len();
         std::future::poll_fn(|_| {
             if self.started && self.next < self.frames.len() * frame_len {
@@ -1193,11 +1255,16 @@ impl PixelSource for TestCamera {
         })
         .await;
         let (f, p) = (self.next / frame_len, self.next % frame_len);
+        let began = (self.next == 0).then_some(CaptureBegin {
+            synced: self.start != CaptureStart::Immediate,
+            camera_frame: Some(41),
+        });
         self.next += self.width;
         PixelRun {
             frame: f as u32,
             first_pixel: p as u32,
             pixels: &self.frames[f][p..p + self.width],
+            began,
         }
     }
 }
@@ -1208,17 +1275,14 @@ fn capture_from_a_camera_streams_slopes() {
     let frames = frames(CAMERA, 5, 61);
     let expected = direct(a.view(), &frames[..3]);
     let (mut storage, mut host, link) = setup(SIZES, 128);
-    let camera = TestCamera {
-        frames: frames.clone(),
-        width: CAMERA.width as usize,
-        started: false,
-        next: 0,
-        link: host.link.clone(),
-    };
+    let camera = TestCamera::new(frames.clone(), host.link.clone(), false);
     let mut device = Device::new(link, camera, storage.buffers(), "cam");
     host.hello();
     host.upload(a.view(), 1, MAX_CHUNK_BYTES);
-    host.send(&HostMessage::Capture { frames: 3 });
+    host.send(&HostMessage::Capture {
+        frames: 3,
+        start: CaptureStart::Immediate,
+    });
     host.send(&HostMessage::PixelRows {
         frame: 0,
         first_pixel: 0,
@@ -1244,6 +1308,94 @@ fn capture_from_a_camera_streams_slopes() {
         slopes_of(&replies, 3).0.is_empty(),
         "no frame after the capture"
     );
+    // How the capture began, once, after the acknowledgement and before
+    // any result.
+    let began: Vec<usize> = (0..replies.len())
+        .filter(|&k| matches!(replies[k], Reply::Began { .. }))
+        .collect();
+    assert_eq!(began.len(), 1, "{replies:?}");
+    assert_eq!(
+        replies[began[0]],
+        Reply::Began {
+            synced: false,
+            camera_frame: Some(41)
+        }
+    );
+    let first_result = replies
+        .iter()
+        .position(|r| matches!(r, Reply::Slopes { .. }))
+        .unwrap();
+    let ack = replies
+        .iter()
+        .position(|r| *r == Reply::Ack(Ack::CaptureStarted { frames: 3 }))
+        .unwrap();
+    assert!(ack < began[0] && began[0] < first_result, "{replies:?}");
+}
+
+/// On the sync line: refused by a camera without one; with one, the
+/// device acknowledges `Capture` only once the camera is armed (so a host
+/// can then release the leader), and says the capture began on the edge.
+#[test]
+fn a_capture_on_the_sync_line_is_acknowledged_once_armed() {
+    let a = config_filtered();
+    let frames = frames(CAMERA, 2, 62);
+    let expected = direct(a.view(), &frames);
+    for start in [CaptureStart::OnSync, CaptureStart::DriveSync] {
+        let (mut storage, mut host, link) = setup(SIZES, 128);
+        let camera = TestCamera::new(frames.clone(), host.link.clone(), false);
+        let mut device = Device::new(link, camera, storage.buffers(), "cam");
+        host.hello();
+        host.upload(a.view(), 1, MAX_CHUNK_BYTES);
+        host.send(&HostMessage::Capture { frames: 2, start });
+        run(&mut device);
+        let replies = host.replies();
+        assert_eq!(
+            errors(&replies),
+            [DeviceError::Sync(SyncFault::NoSyncLine)],
+            "{start:?}"
+        );
+        assert!(!acks(&replies).contains(&Ack::CaptureStarted { frames: 2 }));
+
+        let (mut storage, mut host, link) = setup(SIZES, 128);
+        let camera = TestCamera::new(frames.clone(), host.link.clone(), true);
+        let mut device = Device::new(link, camera, storage.buffers(), "cam");
+        host.hello();
+        host.upload(a.view(), 1, MAX_CHUNK_BYTES);
+        host.send(&HostMessage::Capture { frames: 2, start });
+        host.link.borrow_mut().closed = false;
+        run(&mut device);
+        let replies = host.replies();
+        assert!(errors(&replies).is_empty(), "{replies:?}");
+        assert_eq!(
+            acks(&replies)[4..],
+            [
+                Ack::CaptureStarted { frames: 2 },
+                Ack::CaptureStopped { frames: 2 }
+            ]
+        );
+        assert!(replies.contains(&Reply::Began {
+            synced: true,
+            camera_frame: Some(41)
+        }));
+        for (k, want) in expected.iter().enumerate() {
+            expect_verified(&replies, k as u32, want);
+        }
+        // Nothing acknowledged the capture before the camera armed.
+        let before = device.source().sent_before_arming.clone().unwrap();
+        let mut reader = FrameReader::new(vec![0u8; MAX_FRAME_LEN]);
+        let mut rest = &before[..];
+        while !rest.is_empty() {
+            let n = reader.push(rest);
+            rest = &rest[n..];
+            while let Some(Received::Frame(f)) = reader.next_frame() {
+                let m = decode::<DeviceMessage>(f).unwrap();
+                assert!(
+                    !matches!(m, DeviceMessage::Ack(Ack::CaptureStarted { .. })),
+                    "acknowledged before armed"
+                );
+            }
+        }
+    }
 }
 
 /// A byte stream that closes the link when it runs dry.

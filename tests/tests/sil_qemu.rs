@@ -389,32 +389,41 @@ fn rig_of_three_boards_m4_and_m7() {
     }
 }
 
-/// `rig capture` in QEMU: three boards (Cortex-M4, M7, M4), each with its
-/// own simulated camera of one seed (one camera's bus fanned out), each
-/// configured with its band of the CANARY sensor as its crop: the
-/// firmware's camera task reads the whole sensor and keeps the band (the
-/// DCMI crop's software twin). The merge by frame number equals the
-/// whole-camera reference bit for bit.
+/// `rig capture` in QEMU: three boards (Cortex-M4, M7, M4) on one
+/// simulated camera (one timeline of frames, one sync line: the boards'
+/// frame servers share a `SharedCamera`), each configured with its band
+/// of the CANARY sensor as its crop: the firmware's camera task reads the
+/// whole sensor and keeps the band (the DCMI crop's software twin). Board
+/// 1's start comes two frame periods late (USB latency, as the test knob
+/// of the shared camera). Without the sync line the boards begin on
+/// different camera frames: they say so, and the merge by frame number
+/// differs from the whole-camera reference. On the sync line (board 0
+/// leading) every board begins on the frame after the leader's edge and
+/// the merge equals the reference bit for bit.
 #[test]
-fn rig_capture_of_three_boards_cropping_one_camera_in_qemu() {
-    use brightpix::rig::{self, BoardKind, Rig, RigStream};
+fn rig_capture_in_qemu_is_aligned_by_the_sync_line_and_not_without() {
+    use brightpix::rig::{self, BoardKind, Rig, RigStart, RigStream};
     use brightpix::sil::canary_config;
-    use brightpix::sim_device::{CameraFrames, CameraOptions, CameraSpec};
+    use brightpix::sim_device::{CameraFrames, CameraSpec, SharedCamera};
+    use std::sync::Arc;
     let whole = canary_config();
     let kind = BoardKind::QemuM4;
     let plan = rig::plan(&whole, 3, kind, &kind.cost_model()).unwrap();
     let rig = Rig::from_plan(whole, kind, None, &plan).unwrap();
     assert!(rig.boards.iter().all(|b| b.config.crop.is_some()));
+    let shared = Arc::new(
+        SharedCamera::new(CameraSpec { seed: 6 }, 10)
+            .with_sync_line()
+            .with_start_delays(vec![0, 2, 0]),
+    );
     let mut devices: Vec<QemuDevice> = [QemuCpu::M4, QemuCpu::M7, QemuCpu::M4]
         .into_iter()
-        .map(|cpu| {
+        .enumerate()
+        .map(|(b, cpu)| {
             QemuDevice::launch(QemuOptions {
                 elf: Some(elf_for(cpu)),
                 cpu,
-                camera: Some(CameraOptions {
-                    spec: CameraSpec { seed: 6 },
-                    fps: 10,
-                }),
+                camera: Some(shared.board(b)),
                 ..QemuOptions::default()
             })
             .unwrap_or_else(|e| panic!("{e:#}"))
@@ -423,22 +432,55 @@ fn rig_capture_of_three_boards_cropping_one_camera_in_qemu() {
     let mut clients: Vec<Client> = devices.iter().map(connect).collect();
     rig::configure(&rig, &mut clients).unwrap();
     let camera = CameraFrames::new(rig.whole.camera, 6);
-    let mut capture = RigStream::new(&rig, true);
-    capture.capture(
-        &mut clients,
-        12,
-        &mut |k| camera.frames(u64::from(k), 1).pop(),
-        &mut |_| {},
+    let mut capture = |start: RigStart| {
+        let mut capture = RigStream::new(&rig, true);
+        capture.capture(
+            &mut clients,
+            12,
+            start,
+            &mut |k| camera.frames(u64::from(k), 1).pop(),
+            &mut |_| {},
+        );
+        capture.finish(&mut |_| {})
+    };
+
+    let skewed = capture(RigStart::Immediate);
+    let firsts: Vec<u32> = skewed
+        .boards
+        .iter()
+        .map(|r| {
+            assert!(r.error.is_none(), "{:?}", r.error);
+            let began = r.began.expect("every board says how it began");
+            assert!(!began.synced);
+            began
+                .camera_frame
+                .expect("a simulated camera numbers frames")
+        })
+        .collect();
+    assert!(firsts[1] > firsts[0], "board 1 starts late: {firsts:?}");
+    let v = skewed.verifier.as_ref().unwrap();
+    assert!(
+        !v.all_match() && v.mismatch_count > 0,
+        "a merge of different camera frames must not verify ({firsts:?})"
     );
-    let run = capture.finish(&mut |_| {});
+
+    let synced = capture(RigStart::Sync { leader: 0 });
     for d in &mut devices {
         check_alive(d);
     }
-    for r in &run.boards {
-        assert!(r.error.is_none(), "{:?}", r.error);
-    }
-    let v = run.verifier.as_ref().unwrap();
-    assert_eq!((run.frames_complete, run.frames_partial), (12, 0));
+    let firsts: Vec<u32> = synced
+        .boards
+        .iter()
+        .map(|r| {
+            assert!(r.error.is_none(), "{:?}", r.error);
+            let began = r.began.expect("every board says how it began");
+            assert!(began.synced, "{began:?}");
+            began.camera_frame.unwrap()
+        })
+        .collect();
+    assert!(firsts.iter().all(|&f| f == firsts[0]), "{firsts:?}");
+    let v = synced.verifier.as_ref().unwrap();
+    assert_eq!((synced.frames_complete, synced.frames_partial), (12, 0));
     assert!(
         v.all_match() && v.frames_verified == 12 && v.slopes_compared == 12 * 49,
         "{:?}",

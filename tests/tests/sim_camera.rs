@@ -30,10 +30,7 @@ fn canary() -> String {
 }
 
 fn camera(seed: u64, fps: u32) -> Option<CameraOptions> {
-    Some(CameraOptions {
-        spec: CameraSpec { seed },
-        fps,
-    })
+    Some(CameraOptions::own(CameraSpec { seed }, fps))
 }
 
 fn in_process(seed: u64) -> InProcessDevice {

@@ -4,7 +4,7 @@
 use core::sync::atomic::{AtomicU32, Ordering};
 use core::task::Waker;
 
-use brightpix_protocol::wire::CropFault;
+use brightpix_protocol::wire::{CaptureStart, CropFault, SyncFault};
 use brightpix_protocol::{Camera, Crop};
 
 /// Bytes in one Cortex-M7 D-cache line.
@@ -94,6 +94,28 @@ pub trait DmaRing {
     /// learns it from its ring and crops.
     fn set_crop(&mut self, camera: Camera, crop: Option<Crop>) {
         let _ = (camera, crop);
+    }
+
+    /// How the next [`start`](Self::start) begins: at once (the camera
+    /// interface takes the next frame start), or on the rig's sync line
+    /// (the board's glue enables the capture from the line's edge: see
+    /// `PixelSource::set_start`). By default no sync line.
+    fn set_start(&mut self, start: CaptureStart) -> Result<(), SyncFault> {
+        match start {
+            CaptureStart::Immediate => Ok(()),
+            CaptureStart::OnSync | CaptureStart::DriveSync => Err(SyncFault::NoSyncLine),
+        }
+    }
+
+    /// Whether the capture [`start`](Self::start)ed last is armed
+    /// (`PixelSource::armed`). By default at once.
+    fn armed(&self) -> bool {
+        true
+    }
+
+    /// How the running capture's first frame began (`PixelSource::began`).
+    fn began(&self) -> crate::device::CaptureBegin {
+        crate::device::CaptureBegin::default()
     }
 }
 

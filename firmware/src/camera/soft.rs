@@ -17,6 +17,15 @@
 //! rectangle with a [`SensorCrop`](super::crop::SensorCrop), as the DCMI's
 //! crop would.
 //!
+//! A capture may start on the rig's sync line ([`CaptureStart`]): the
+//! producer then plays the board's sync glue as well. It tells the ring
+//! when the capture is armed ([`SoftRing::arm`]; the device acknowledges
+//! `Capture` only then), waits for the edge on its simulated line, and
+//! says how the capture began ([`SoftRing::begin`]: on the edge or not,
+//! and the camera frame it began on) before its first words. A ring
+//! accepts the sync modes only if its producer has a line
+//! ([`SoftRing::set_sync_line`]).
+//!
 //! Captures are numbered: [`SoftRing::capture`] gives the producer the
 //! current one, and writes for any other (a capture stopped or restarted
 //! meanwhile) are refused, so a producer that was slow to notice cannot put
@@ -29,13 +38,13 @@ use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use core::task::Waker;
 
 use atomic_waker::AtomicWaker;
-use brightpix_protocol::wire::{CropFault, PixelSourceKind};
+use brightpix_protocol::wire::{CaptureStart, CropFault, PixelSourceKind, SyncFault};
 use brightpix_protocol::{Camera, Crop};
 
 use super::packing::DataWidth;
 use super::ring::{DmaProgress, DmaRing, FrameMarks, RING_GRANULE_WORDS};
 use super::source::{CameraStats, DcmiSource};
-use crate::device::{CameraRefused, PixelRun, PixelSource};
+use crate::device::{CameraRefused, CaptureBegin, PixelRun, PixelSource};
 
 /// A capture as the producer sees it: its number and the geometry of its
 /// frames: `camera`, cut at `crop` from a larger sensor if there is one
@@ -45,6 +54,8 @@ pub struct SoftCapture {
     pub id: u32,
     pub camera: Camera,
     pub crop: Option<Crop>,
+    /// How its frame 0 is chosen.
+    pub start: CaptureStart,
 }
 
 impl SoftCapture {
@@ -73,8 +84,35 @@ pub struct SoftRing<const WORDS: usize> {
     cropped: AtomicBool,
     crop_origin: AtomicU32,
     sensor_size: AtomicU32,
+    /// The producer can play a sync line.
+    sync_line: AtomicBool,
+    /// The next capture's start ([`start_code`]), then the running one's.
+    start: AtomicU32,
+    /// The running capture is armed.
+    armed: AtomicBool,
+    /// How it began: `began` once known, then `synced` and the camera
+    /// frame (`u32::MAX` stands for unknown).
+    began: AtomicBool,
+    began_synced: AtomicBool,
+    began_frame: AtomicU32,
     marks: FrameMarks,
     waker: AtomicWaker,
+}
+
+const fn start_code(start: CaptureStart) -> u32 {
+    match start {
+        CaptureStart::Immediate => 0,
+        CaptureStart::OnSync => 1,
+        CaptureStart::DriveSync => 2,
+    }
+}
+
+const fn start_of(code: u32) -> CaptureStart {
+    match code {
+        1 => CaptureStart::OnSync,
+        2 => CaptureStart::DriveSync,
+        _ => CaptureStart::Immediate,
+    }
 }
 
 impl<const WORDS: usize> SoftRing<WORDS> {
@@ -98,6 +136,12 @@ impl<const WORDS: usize> SoftRing<WORDS> {
             cropped: AtomicBool::new(false),
             crop_origin: AtomicU32::new(0),
             sensor_size: AtomicU32::new(0),
+            sync_line: AtomicBool::new(false),
+            start: AtomicU32::new(0),
+            armed: AtomicBool::new(false),
+            began: AtomicBool::new(false),
+            began_synced: AtomicBool::new(false),
+            began_frame: AtomicU32::new(u32::MAX),
             marks: FrameMarks::new(),
             waker: AtomicWaker::new(),
         }
@@ -138,9 +182,43 @@ impl<const WORDS: usize> SoftRing<WORDS> {
                         sensor_width: (sensor >> 16) as u16,
                         sensor_height: sensor as u16,
                     }),
+                    start: start_of(self.start.load(Ordering::Relaxed)),
                 }
             })
         })
+    }
+
+    /// Says the producer can play a sync line (before captures start):
+    /// the ring then accepts [`CaptureStart::OnSync`] and
+    /// [`CaptureStart::DriveSync`].
+    pub fn set_sync_line(&self, present: bool) {
+        self.sync_line.store(present, Ordering::Relaxed);
+    }
+
+    /// Capture `id` is armed: the device may acknowledge it.
+    pub fn arm(&self, id: u32) {
+        let done = self.locked(|| {
+            let current = self.current(id);
+            if current {
+                self.armed.store(true, Ordering::Release);
+            }
+            current
+        });
+        if done {
+            self.waker.wake();
+        }
+    }
+
+    /// How capture `id` began; called before its first [`write`](Self::write).
+    pub fn begin(&self, id: u32, began: CaptureBegin) {
+        self.locked(|| {
+            if self.current(id) {
+                self.began_synced.store(began.synced, Ordering::Relaxed);
+                self.began_frame
+                    .store(began.camera_frame.unwrap_or(u32::MAX), Ordering::Relaxed);
+                self.began.store(true, Ordering::Release);
+            }
+        });
     }
 
     /// Whether capture `id` is still running.
@@ -274,8 +352,39 @@ impl<const WORDS: usize> DmaRing for SoftDma<'_, WORDS> {
             r.write_index.store(0, Ordering::Relaxed);
             r.captures.fetch_add(1, Ordering::Relaxed);
             r.running.store(true, Ordering::Relaxed);
+            let immediate = r.start.load(Ordering::Relaxed) == 0;
+            r.armed.store(immediate, Ordering::Relaxed);
+            r.began.store(false, Ordering::Relaxed);
         });
         0
+    }
+
+    /// The sync modes only if the producer has a line.
+    fn set_start(&mut self, start: CaptureStart) -> Result<(), SyncFault> {
+        let r = self.ring;
+        if start != CaptureStart::Immediate && !r.sync_line.load(Ordering::Relaxed) {
+            return Err(SyncFault::NoSyncLine);
+        }
+        r.locked(|| r.start.store(start_code(start), Ordering::Relaxed));
+        Ok(())
+    }
+
+    fn armed(&self) -> bool {
+        self.ring.armed.load(Ordering::Acquire)
+    }
+
+    fn began(&self) -> CaptureBegin {
+        let r = self.ring;
+        r.locked(|| {
+            if !r.began.load(Ordering::Acquire) {
+                return CaptureBegin::default();
+            }
+            let frame = r.began_frame.load(Ordering::Relaxed);
+            CaptureBegin {
+                synced: r.began_synced.load(Ordering::Relaxed),
+                camera_frame: (frame != u32::MAX).then_some(frame),
+            }
+        })
     }
 
     fn stop(&mut self) {
@@ -349,6 +458,14 @@ impl<const WORDS: usize> PixelSource for SimulatedCamera<'_, '_, WORDS> {
     fn start(&mut self, camera: Camera, crop: Option<Crop>) -> Result<(), CameraRefused> {
         self.ring.set_camera(camera, crop);
         self.source.start(camera, crop)
+    }
+
+    fn set_start(&mut self, start: CaptureStart) -> Result<(), SyncFault> {
+        self.source.set_start(start)
+    }
+
+    fn armed(&self) -> bool {
+        self.source.armed()
     }
 
     fn stop(&mut self) {

@@ -3,7 +3,7 @@
 use core::future::poll_fn;
 use core::task::Poll;
 
-use brightpix_protocol::wire::{CropFault, PixelSourceKind};
+use brightpix_protocol::wire::{CaptureStart, CropFault, PixelSourceKind, SyncFault};
 use brightpix_protocol::{Camera, Crop};
 
 use super::crop::frame_check;
@@ -99,6 +99,12 @@ pub struct DcmiSource<'b, R> {
     words: &'b mut [u32],
     pixels: &'b mut [u16],
     run: Option<Run>,
+    /// No run of the running capture delivered yet: the next one carries
+    /// how the capture began.
+    first_run: bool,
+    /// The capture waits to be armed (the sync line's modes): an empty
+    /// run tells the device loop when it is.
+    arming: bool,
     stats: CameraStats,
 }
 
@@ -125,6 +131,8 @@ impl<'b, R: DmaRing> DcmiSource<'b, R> {
             words,
             pixels,
             run: None,
+            first_run: false,
+            arming: false,
             stats: CameraStats::default(),
         }
     }
@@ -422,7 +430,17 @@ impl<R: DmaRing> PixelSource for DcmiSource<'_, R> {
             skipping: false,
             gap: false,
         });
+        self.first_run = true;
+        self.arming = !self.ring.armed();
         Ok(())
+    }
+
+    fn set_start(&mut self, start: CaptureStart) -> Result<(), SyncFault> {
+        self.ring.set_start(start)
+    }
+
+    fn armed(&self) -> bool {
+        self.ring.armed()
     }
 
     fn stop(&mut self) {
@@ -431,6 +449,8 @@ impl<R: DmaRing> PixelSource for DcmiSource<'_, R> {
         }
     }
 
+    /// Besides pixels: one empty run when a capture that waited to be
+    /// armed is (the device loop then acknowledges it).
     async fn next(&mut self) -> PixelRun<'_> {
         let (frame, first_pixel, n) = poll_fn(|cx| {
             if self.run.is_none() {
@@ -440,6 +460,13 @@ impl<R: DmaRing> PixelSource for DcmiSource<'_, R> {
             }
             // Register before looking, so an event in between still wakes.
             self.ring.register_waker(cx.waker());
+            if self.arming {
+                if !self.ring.armed() {
+                    return Poll::Pending;
+                }
+                self.arming = false;
+                return Poll::Ready((0, 0, 0));
+            }
             match self.take_run() {
                 Step::Run(frame, first_pixel, n) => Poll::Ready((frame, first_pixel, n)),
                 Step::Wait => Poll::Pending,
@@ -450,10 +477,13 @@ impl<R: DmaRing> PixelSource for DcmiSource<'_, R> {
             }
         })
         .await;
+        // The ring said how the capture began before its first word.
+        let began = (n > 0 && core::mem::take(&mut self.first_run)).then(|| self.ring.began());
         PixelRun {
             frame,
             first_pixel,
             pixels: &self.pixels[..n],
+            began,
         }
     }
 }

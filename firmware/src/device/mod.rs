@@ -42,6 +42,7 @@
 //! the engine and results back.
 
 pub mod bench;
+mod capture;
 mod fmt;
 mod pixels;
 pub mod source;
@@ -55,20 +56,20 @@ use core::convert::Infallible;
 use brightpix_protocol::wire::{
     decode_body, encode, hello_in_body, unstuff, Ack, BenchFault, Capabilities, DeviceError,
     DeviceMessage, FrameFault, FrameReader, Health, Hello, HelloReply, HostMessage, MessageKind,
-    PixelSourceKind, Received, ResetReason, Status, WireError, ALL_WORKLOADS, MAX_BOARD_NAME_LEN,
-    MAX_FRAME_LEN,
+    Received, ResetReason, Status, WireError, ALL_WORKLOADS, MAX_BOARD_NAME_LEN, MAX_FRAME_LEN,
 };
 use embassy_futures::select::{select, select3, Either, Either3};
 use embedded_io_async::{Read, Write};
 
 use crate::engine::{Engine, EngineMemory, EngineStats, OutputSink, SubapertureResult};
 use bench::BenchPlan;
+use capture::Capture;
 use fmt::{log_debug, log_info, log_warn};
 use upload::Upload;
 
 pub use bench::{BenchMemory, BenchRunner};
 pub use embedded_io_async;
-pub use source::{CameraRefused, LinkOnly, PixelRowsStream, PixelRun, PixelSource};
+pub use source::{CameraRefused, CaptureBegin, LinkOnly, PixelRowsStream, PixelRun, PixelSource};
 pub use storage::{ConfigSlot, DeviceBuffers, DeviceStorage, SlotStorage};
 pub use watchdog::{NoWatchdog, Watchdog};
 
@@ -144,12 +145,6 @@ struct FrameProgress {
     next: u32,
     /// Results sent so far.
     sent: u32,
-}
-
-#[derive(Clone, Copy)]
-struct Capture {
-    frames: u32,
-    done: u32,
 }
 
 #[derive(PartialEq, Eq)]
@@ -501,6 +496,9 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
                 Either3::First(Ok(n)) => rx.advance(n),
                 Either3::First(Err(e)) => return Err(LinkError::Io(e)),
                 Either3::Second(run) => {
+                    if let Some(began) = run.began {
+                        self.capture_began(began).await?;
+                    }
                     if let Some(engine) = engine {
                         self.feed(engine, run.frame, run.first_pixel, run.pixels)
                             .await?;
@@ -508,6 +506,7 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
                 }
                 Either3::Third(()) => {} // fed at the top of the loop
             }
+            self.acknowledge_capture(source.armed()).await?;
             if core::mem::take(&mut self.capture_finished) {
                 source.stop();
                 let frames = self.capture.take().map_or(0, |c| c.done);
@@ -641,46 +640,19 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
                 }
                 return Ok(Next::Continue);
             }
-            HostMessage::Capture { frames } => {
-                if source.kind() != PixelSourceKind::Camera {
-                    Err(DeviceError::NoCamera)
-                } else if self.capture.is_some() {
-                    Err(DeviceError::Unexpected {
-                        message: MessageKind::Capture,
-                    })
-                } else {
-                    match engine {
-                        None => Err(DeviceError::NotConfigured),
-                        Some(engine) => {
-                            match source.start(engine.config().camera, engine.config().crop) {
-                                Ok(()) => {
-                                    self.capture = Some(Capture { frames, done: 0 });
-                                    log_info!("device: capture of {=u32} frames started", frames);
-                                    Ok(Ack::CaptureStarted { frames })
-                                }
-                                Err(CameraRefused) => Err(DeviceError::NoCamera),
-                            }
-                        }
-                    }
+            HostMessage::Capture { frames, start } => {
+                match self.start_capture(frames, start, source, engine) {
+                    Ok(Some(ack)) => Ok(ack),
+                    // Acknowledged once armed.
+                    Ok(None) => return Ok(Next::Continue),
+                    Err(e) => Err(e),
                 }
             }
             HostMessage::Bench { workload, frames } => match self.check_bench(workload, frames) {
                 Ok(plan) => return Ok(Next::Bench(plan)),
                 Err(e) => Err(DeviceError::Bench(e)),
             },
-            HostMessage::StopCapture => {
-                let frames = match self.capture.take() {
-                    Some(capture) => {
-                        source.stop();
-                        if let Some(engine) = engine {
-                            self.drop_frame(engine, FrameFault::Stopped).await?;
-                        }
-                        capture.done
-                    }
-                    None => 0,
-                };
-                Ok(Ack::CaptureStopped { frames })
-            }
+            HostMessage::StopCapture => Ok(self.stop_capture(source, engine).await?),
         };
         match reply {
             Ok(ack) => self.send(&DeviceMessage::Ack(ack)).await?,

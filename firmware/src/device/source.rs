@@ -2,7 +2,7 @@
 
 use brightpix_protocol::wire::tables::pixels_from_le;
 use brightpix_protocol::wire::{
-    decode, CropFault, FrameReader, HostMessage, PixelSourceKind, Received,
+    decode, CaptureStart, CropFault, FrameReader, HostMessage, PixelSourceKind, Received, SyncFault,
 };
 use brightpix_protocol::{Camera, Crop};
 use embedded_io_async::Read;
@@ -17,12 +17,25 @@ pub struct PixelRun<'a> {
     pub frame: u32,
     pub first_pixel: u32,
     pub pixels: &'a [u16],
+    /// On a capture's first run: how its frame 0 began (the device sends
+    /// `CaptureBegan` before anything of it); `None` on every other run.
+    pub began: Option<CaptureBegin>,
 }
 
 /// A pixel source cannot capture (none, or not this geometry); the host
 /// gets `Error(NoCamera)`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct CameraRefused;
+
+/// How a capture's frame 0 began ([`PixelRun::began`]), for the host's
+/// `CaptureBegan`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CaptureBegin {
+    /// Frame 0 is the first frame start after a sync edge the source saw.
+    pub synced: bool,
+    /// The camera's own number of frame 0, if the source knows it.
+    pub camera_frame: Option<u32>,
+}
 
 /// A source of camera pixels: a camera interface, or a stream the host
 /// writes outside the link (e.g. a semihosting file on QEMU).
@@ -46,6 +59,25 @@ pub trait PixelSource {
     fn start(&mut self, camera: Camera, crop: Option<Crop>) -> Result<(), CameraRefused> {
         let _ = (camera, crop);
         Err(CameraRefused)
+    }
+
+    /// How the next [`start`](Self::start) begins (asked before it):
+    /// [`CaptureStart::Immediate`] always can; the sync line's modes only a
+    /// source with a sync line (the default refuses them).
+    fn set_start(&mut self, start: CaptureStart) -> Result<(), SyncFault> {
+        match start {
+            CaptureStart::Immediate => Ok(()),
+            CaptureStart::OnSync | CaptureStart::DriveSync => Err(SyncFault::NoSyncLine),
+        }
+    }
+
+    /// Whether the capture started last is armed: a rising edge of the
+    /// sync line from now on starts it (`OnSync`), or it is about to raise
+    /// the line (`DriveSync`). The device acknowledges `Capture` only once
+    /// it is, so that a host may then release the leader. By default at
+    /// once: a board arms in [`start`](Self::start) itself.
+    fn armed(&self) -> bool {
+        true
     }
 
     /// Stops capturing (`StopCapture`, or the requested frames are done).
@@ -136,6 +168,7 @@ impl<R: Read> PixelSource for PixelRowsStream<'_, R> {
                     frame,
                     first_pixel,
                     pixels: &self.pixels[..n],
+                    began: None,
                 };
             }
             if self.ended {

@@ -15,6 +15,7 @@ mod process;
 mod progress;
 mod rig;
 mod rig_capture;
+mod rig_demo;
 mod simulate_device;
 mod soak;
 mod status;

@@ -2,11 +2,11 @@
 //! whole-camera configuration into board parts and writes `rig.toml`;
 //! `check` loads one and prints it; `configure` uploads each board's part;
 //! `stream` runs the boards together on recorded frames and merges their
-//! results into one whole-camera output. `brightpix demo --boards K` is
-//! the same on simulated devices.
+//! results into one whole-camera output; `capture` (`rig_capture.rs`) does
+//! so with each board's own camera. `brightpix demo --boards K`
+//! (`rig_demo.rs`) is `stream` on simulated devices.
 
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
@@ -15,12 +15,11 @@ use crate::config_file::ProcessingConfig;
 use crate::io::{
     check_result_outputs, write_results, FrameSource, Layout, Provenance, Raw, Results,
 };
-use crate::link::{Client, PixelSink};
+use crate::link::Client;
 use crate::rig::{
     self, describe_load, BoardKind, CostModel, Rig, RigRun, RigStream, DCMI_MAX_PIXEL_CLOCK_HZ,
     USB_FULL_SPEED_BYTES_PER_S,
 };
-use crate::sim_device::{InProcessDevice, QemuCpu, QemuDevice, QemuOptions};
 
 #[derive(Args)]
 #[command(
@@ -31,9 +30,14 @@ brightpix rig check --rig rig.toml --board-configs boards/   # also boards/board
 brightpix configure --port /dev/ttyACM0 --config boards/board-0.toml   # one board alone\n  \
 brightpix rig configure --rig rig.toml\n  \
 brightpix rig stream --rig rig.toml --frames frames.npy --verify --out slopes.npy\n  \
+brightpix rig capture --rig rig.toml --count 1000 --out slopes.npy   # each board's own camera\n  \
 brightpix demo --boards 3            # three simulated devices on one simulated camera\n\n\
 Each board captures a rectangle of the sensor and runs an ordinary configuration whose camera is\n\
-that rectangle; results are merged by frame number into the whole camera's sub-aperture order."
+that rectangle; results are merged by frame number into the whole camera's sub-aperture order.\n\
+`rig stream` numbers the frames it sends, so they agree on every board. `rig capture` starts the\n\
+boards on one camera frame only with a sync line wired to every board ([sync] leader = \"NAME\" in\n\
+rig.toml; STM32H743: PF13): followers are armed first, then the leader raises the line after a\n\
+frame start. Without one it warns: boards may begin frames apart."
 )]
 pub struct RigArgs {
     #[command(subcommand)]
@@ -51,7 +55,8 @@ enum RigCommand {
     /// Stream recorded frames to the rig's boards and merge their results.
     Stream(StreamArgs),
     /// Capture with every board's own camera (one camera's bus fanned out, each board cropping
-    /// its rectangle) and merge their results by frame number.
+    /// its rectangle) and merge their results by frame number; on the rig's sync line if it has
+    /// one.
     Capture(super::rig_capture::CaptureArgs),
 }
 
@@ -296,7 +301,7 @@ fn relative_to(path: &Path, dir: &Path) -> PathBuf {
 
 /// The boards, their parts and predicted loads, and the limits of a board
 /// that sees only its rectangle.
-fn print_rig(rig: &Rig, loads: Option<&[rig::BoardLoad]>) {
+pub(super) fn print_rig(rig: &Rig, loads: Option<&[rig::BoardLoad]>) {
     let model = rig.kind.cost_model();
     let computed;
     let loads = match loads {
@@ -431,14 +436,15 @@ impl Outcome {
     /// Fails when a frame was partial, a board stopped, or (with
     /// `verify`) a frame differs from the reference.
     pub fn verdict(&self, verify: bool, total: usize) -> Result<()> {
-        if let Some((b, e)) = self
+        let stopped: Vec<String> = self
             .run
             .boards
             .iter()
             .enumerate()
-            .find_map(|(b, r)| r.error.as_ref().map(|e| (b, e)))
-        {
-            bail!("board {b} stopped: {e}");
+            .filter_map(|(b, r)| r.error.as_ref().map(|e| format!("board {b} stopped: {e}")))
+            .collect();
+        if !stopped.is_empty() {
+            bail!("{}", stopped.join("; "));
         }
         if self.run.frames_partial > 0 {
             bail!(
@@ -703,85 +709,6 @@ impl LiveBoards {
         ));
         health
     }
-}
-
-/// A simulated board of `demo --boards`.
-enum SimBoard {
-    InProcess(InProcessDevice),
-    Qemu(QemuDevice),
-}
-
-/// `brightpix demo --boards K [--qemu]`: K simulated devices (in-process,
-/// or the firmware in QEMU alternating Cortex-M4 and M7) on one simulated
-/// CANARY camera, planned, streamed, merged and verified.
-pub(super) fn demo(
-    boards: usize,
-    frames: &[Vec<u16>],
-    qemu: bool,
-    elf: Option<PathBuf>,
-) -> Result<()> {
-    let whole = crate::sil::canary_config();
-    let kind = if qemu {
-        BoardKind::QemuM4
-    } else {
-        BoardKind::Stm32h743
-    };
-    let model = kind.cost_model();
-    let plan = rig::plan(&whole, boards, kind, &model)?;
-    let mut rig = Rig::from_plan(whole, kind, None, &plan).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let started = Instant::now();
-    let mut devices = Vec::new();
-    for k in 0..boards {
-        devices.push(if qemu {
-            let cpu = if k % 2 == 0 { QemuCpu::M4 } else { QemuCpu::M7 };
-            let device = QemuDevice::launch(QemuOptions {
-                elf: elf.clone().filter(|_| cpu == QemuCpu::M4),
-                pixels_fifo: true,
-                cpu,
-                ..QemuOptions::default()
-            })?;
-            device.release_fifo(Duration::from_secs(10))?;
-            SimBoard::Qemu(device)
-        } else {
-            SimBoard::InProcess(
-                InProcessDevice::start_pty().context("starting an in-process device")?,
-            )
-        });
-    }
-    let mut clients = Vec::new();
-    for (k, device) in devices.iter().enumerate() {
-        let (port, fifo) = match device {
-            SimBoard::InProcess(d) => (d.port().to_string(), None),
-            SimBoard::Qemu(d) => (d.port().to_string(), d.pixels_fifo().map(Path::to_path_buf)),
-        };
-        rig.boards[k].port = Some(port.clone());
-        let mut client = Client::open(&port)?;
-        if let Some(fifo) = fifo {
-            client.set_pixel_sink(PixelSink::Fifo(fifo));
-        }
-        clients.push(client);
-    }
-    rig::configure(&rig, &mut clients)?;
-    println!(
-        "brightpix demo: {} {} on one simulated CANARY camera (112x112, 49 sub-apertures), started and configured in {:.2} s",
-        boards,
-        if qemu {
-            "firmware ELFs in qemu-system-arm (Cortex-M4 and M7 alternating), pixels through FIFOs"
-        } else {
-            "in-process devices"
-        },
-        started.elapsed().as_secs_f64()
-    );
-    print_rig(&rig, None);
-    let read = |first: usize, count: usize| Ok(frames[first..first + count].to_vec());
-    let outcome = run_and_report(&rig, &mut clients, frames.len(), read, true, 10, None)?;
-    outcome.verdict(true, frames.len())?;
-    println!(
-        "PASS: all {} merged frames bit-identical to the whole-camera reference",
-        frames.len()
-    );
-    drop(devices);
-    Ok(())
 }
 
 /// The live view's set-up for a rig: the whole camera, pixels shown, each

@@ -91,11 +91,11 @@ pub fn run(args: SimulateDeviceArgs) -> Result<()> {
         }
     };
     catch_interrupts();
-    let camera = args.camera.map(|spec| CameraOptions {
-        spec,
-        fps: args
+    let camera = args.camera.map(|spec| {
+        let fps = args
             .camera_fps
-            .unwrap_or(if args.qemu { QEMU_FPS } else { IN_PROCESS_FPS }),
+            .unwrap_or(if args.qemu { QEMU_FPS } else { IN_PROCESS_FPS });
+        CameraOptions::own(spec, fps)
     });
     let describe_camera = |camera: &CameraOptions| {
         eprintln!(
@@ -114,7 +114,7 @@ pub fn run(args: SimulateDeviceArgs) -> Result<()> {
                 CpuArg::M4 => QemuCpu::M4,
                 CpuArg::M7 => QemuCpu::M7,
             },
-            camera,
+            camera: camera.clone(),
             board_args: Vec::new(),
             icount: args.icount,
         })?;
@@ -166,7 +166,7 @@ pub fn run(args: SimulateDeviceArgs) -> Result<()> {
         let device = InProcessDevice::start(InProcessOptions {
             link,
             pixels_fifo: fifo,
-            camera,
+            camera: camera.clone(),
             ..InProcessOptions::default()
         })?;
         println!("{}", device.port());

@@ -206,7 +206,7 @@ fn simulated_camera(
         Some(r) => bail!("--rate {r}: must be at least 1 frame per second"),
         None => default_fps,
     };
-    let camera = Some(CameraOptions { spec, fps });
+    let camera = Some(CameraOptions::own(spec, fps));
     let mut qemu = None;
     let mut in_process = None;
     let port = if args.qemu {

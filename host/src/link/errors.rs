@@ -34,6 +34,10 @@ pub enum LinkError {
         timeout: Duration,
         waiting: String,
     },
+    #[error(
+        "{port} was armed on the sync line but its capture never began within {timeout:?}: it saw no rising edge (is the sync line wired to it, and did the leader start?)"
+    )]
+    NoSyncEdge { port: String, timeout: Duration },
     #[error("the device did not take data on {port} for {timeout:?} (writing {what})")]
     WriteStalled {
         port: String,

@@ -8,8 +8,8 @@ use std::io::ErrorKind;
 use std::time::{Duration, Instant};
 
 use brightpix_protocol::wire::{
-    encode, Ack, DeviceError, FrameFault, HostMessage, PixelRowsPlan, SlopeEntry, MAX_FRAME_LEN,
-    MAX_PIXEL_BYTES,
+    encode, Ack, CaptureStart, DeviceError, FrameFault, HostMessage, PixelRowsPlan, SlopeEntry,
+    MAX_FRAME_LEN, MAX_PIXEL_BYTES,
 };
 
 use super::errors::unexpected;
@@ -369,55 +369,91 @@ impl Client {
         frames: u32,
         on_frame: &mut dyn FnMut(&FrameOutcome),
     ) -> Result<Vec<FrameOutcome>, Interrupted<Vec<FrameOutcome>>> {
-        let mut received = Vec::new();
-        if frames == 0 {
+        if let Err(error) = self.start_capture(frames, CaptureStart::Immediate) {
             return Err(Interrupted {
-                error: LinkError::Usage("capture needs at least one frame".into()),
-                received,
+                error,
+                received: Vec::new(),
             });
         }
-        let result = (|| {
-            match self.request(&HostMessage::Capture { frames })? {
-                Reply::Ack(Ack::CaptureStarted { .. }) => {}
-                other => return Err(unexpected("Capture", &other)),
+        self.collect_capture(&mut |_| {}, on_frame)
+    }
+
+    /// Sends `Capture { frames, start }` (`frames` at least 1) and waits
+    /// for its acknowledgement: the capture is armed (on the sync line: it
+    /// waits for the edge). Then [`Client::collect_capture`].
+    pub fn start_capture(&mut self, frames: u32, start: CaptureStart) -> Result<(), LinkError> {
+        if frames == 0 {
+            return Err(LinkError::Usage("capture needs at least one frame".into()));
+        }
+        self.capture_began = None;
+        match self.request(&HostMessage::Capture { frames, start }) {
+            Ok(Reply::Ack(Ack::CaptureStarted { .. })) => Ok(()),
+            Ok(other) => Err(unexpected("Capture", &other)),
+            Err(e @ LinkError::Device { .. }) => Err(e),
+            Err(e) => {
+                // No acknowledgement in time: a capture armed late must
+                // not start later by itself.
+                self.send_stop_capture();
+                Err(e)
             }
-            loop {
-                let next =
-                    self.wait_within("captured frames", self.options.capture_timeout, |c| {
-                        if let Some(o) = c.finished.pop_front() {
-                            return Some(Ok(o));
-                        }
-                        let at = c
-                            .replies
-                            .iter()
-                            .position(|r| matches!(r, Reply::Ack(Ack::CaptureStopped { .. })))?;
-                        c.replies.remove(at);
-                        Some(Err(()))
-                    })?;
-                match next {
-                    Ok(o) => {
+        }
+    }
+
+    /// How the capture started last began, once its `CaptureBegan` came.
+    pub fn capture_began(&self) -> Option<CaptureBegan> {
+        self.capture_began
+    }
+
+    /// The frames of the capture [`Client::start_capture`] started, until
+    /// its `Ack(CaptureStopped)`: `on_began` once with its `CaptureBegan`,
+    /// `on_frame` with each frame as it arrives.
+    pub fn collect_capture(
+        &mut self,
+        on_began: &mut dyn FnMut(CaptureBegan),
+        on_frame: &mut dyn FnMut(&FrameOutcome),
+    ) -> Result<Vec<FrameOutcome>, Interrupted<Vec<FrameOutcome>>> {
+        let mut received = Vec::new();
+        let mut began_told = false;
+        let result = (|| loop {
+            let next = self.wait_within("captured frames", self.options.capture_timeout, |c| {
+                if !began_told {
+                    if let Some(b) = c.capture_began {
+                        return Some(Err(Some(b)));
+                    }
+                }
+                if let Some(o) = c.finished.pop_front() {
+                    return Some(Ok(o));
+                }
+                let at = c
+                    .replies
+                    .iter()
+                    .position(|r| matches!(r, Reply::Ack(Ack::CaptureStopped { .. })))?;
+                c.replies.remove(at);
+                Some(Err(None))
+            })?;
+            match next {
+                Err(Some(began)) => {
+                    began_told = true;
+                    on_began(began);
+                }
+                Ok(o) => {
+                    on_frame(&o);
+                    received.push(o);
+                }
+                Err(None) => {
+                    // Results of the last frame precede the stop.
+                    while let Some(o) = self.finished.pop_front() {
                         on_frame(&o);
                         received.push(o);
                     }
-                    Err(()) => {
-                        // Results of the last frame precede the stop.
-                        while let Some(o) = self.finished.pop_front() {
-                            on_frame(&o);
-                            received.push(o);
-                        }
-                        return Ok(());
-                    }
+                    return Ok(());
                 }
             }
         })();
         match result {
             Ok(()) => Ok(received),
             Err(error) => {
-                let stop = self
-                    .encode(&HostMessage::StopCapture)
-                    .map(<[u8]>::to_vec)
-                    .unwrap_or_default();
-                let _ = self.write_raw(&stop, "StopCapture");
+                self.send_stop_capture();
                 for s in self.take_incomplete() {
                     received.push(FrameOutcome::Incomplete(s));
                 }
@@ -425,6 +461,25 @@ impl Client {
             }
         }
     }
+
+    /// `StopCapture` without waiting for its reply (after an error).
+    pub fn send_stop_capture(&mut self) {
+        let stop = self
+            .encode(&HostMessage::StopCapture)
+            .map(<[u8]>::to_vec)
+            .unwrap_or_default();
+        let _ = self.write_raw(&stop, "StopCapture");
+    }
+}
+
+/// How a capture's frame 0 began (`DeviceMessage::CaptureBegan`,
+/// PROTOCOL.md §9).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CaptureBegan {
+    /// On the first frame start after a sync edge the device saw.
+    pub synced: bool,
+    /// The camera's number of that frame, if the device knows it.
+    pub camera_frame: Option<u32>,
 }
 
 /// The `PixelRows` frames of one frame of pixels, concatenated (at most

@@ -61,7 +61,9 @@ use brightpix_protocol::Camera;
 pub use bench::BenchRow;
 pub use device_info::DeviceInfo;
 pub use errors::{Interrupted, LinkError};
-pub use frames::{encode_pixel_rows, pixel_rows_frames, FrameOutcome, FrameSlopes, StreamReport};
+pub use frames::{
+    encode_pixel_rows, pixel_rows_frames, CaptureBegan, FrameOutcome, FrameSlopes, StreamReport,
+};
 pub use port::{open_port, Port, UnixPort};
 pub use requests::{Configured, Reply};
 pub use serialport;
@@ -123,6 +125,8 @@ pub struct Client {
     /// client was waiting for (an earlier stream's or session's).
     pub stale_outcomes: u64,
     camera: Option<Camera>,
+    /// How the last capture began (`CaptureBegan`), once it did.
+    capture_began: Option<frames::CaptureBegan>,
     subapertures: usize,
     upload_counter: u32,
     /// This client's session id.
@@ -213,6 +217,7 @@ impl Client {
             notices: Vec::new(),
             damaged_frames: 0,
             stale_outcomes: 0,
+            capture_began: None,
             camera: None,
             subapertures: 0,
             upload_counter: 0,

@@ -30,6 +30,7 @@ enum Incoming {
         frame: u32,
         fault: FrameFault,
     },
+    Began(super::frames::CaptureBegan),
     Damaged,
 }
 
@@ -218,6 +219,7 @@ impl Client {
                     fault,
                 });
             }
+            Incoming::Began(began) => self.capture_began = Some(began),
             Incoming::Damaged => self.damaged_frames += 1,
         }
     }
@@ -246,6 +248,13 @@ fn decode_incoming(bytes: &mut [u8]) -> Incoming {
         Ok(DeviceMessage::BenchReport(r)) => {
             Incoming::Reply(Reply::Bench(super::bench::BenchRow::of(&r)))
         }
+        Ok(DeviceMessage::CaptureBegan {
+            synced,
+            camera_frame,
+        }) => Incoming::Began(super::frames::CaptureBegan {
+            synced,
+            camera_frame,
+        }),
         Err(_) => {
             let mut copy = copy;
             match hello_prefix(&mut copy) {

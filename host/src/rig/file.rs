@@ -38,6 +38,17 @@ pub struct Rig {
     pub kind: BoardKind,
     pub camera_rate_hz: Option<f64>,
     pub boards: Vec<RigBoard>,
+    /// The sync line wired to every board (`[sync]`), if the rig has one.
+    pub sync: Option<RigSync>,
+}
+
+/// `[sync]`: a line wired to every board (on the STM32H743 PF13,
+/// firmware/boards/stm32h743 `sync.rs`), driven by one of them, so that all
+/// start a capture on the same camera frame (PROTOCOL.md §9).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RigSync {
+    /// Index of the board that drives the line (`leader = "NAME"`).
+    pub leader: usize,
 }
 
 #[derive(Deserialize)]
@@ -46,8 +57,15 @@ struct RigToml {
     config: PathBuf,
     board: String,
     camera_rate_hz: Option<f64>,
+    sync: Option<SyncToml>,
     #[serde(default)]
     boards: Vec<BoardToml>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SyncToml {
+    leader: String,
 }
 
 #[derive(Deserialize)]
@@ -89,8 +107,28 @@ impl Rig {
             .map(|b| (b.name, b.port, b.rectangle, b.subapertures))
             .collect();
         let mut rig = Rig::from_parts(whole, kind, file.camera_rate_hz, boards).map_err(fail)?;
+        if let Some(sync) = file.sync {
+            rig.set_sync_leader(&sync.leader).map_err(fail)?;
+        }
         rig.config_file = Some(config_path);
         Ok(rig)
+    }
+
+    /// Declares the sync line, driven by the board named `leader`.
+    pub fn set_sync_leader(&mut self, leader: &str) -> Result<(), String> {
+        let index = self
+            .boards
+            .iter()
+            .position(|b| b.name == leader)
+            .ok_or_else(|| {
+                let names: Vec<&str> = self.boards.iter().map(|b| b.name.as_str()).collect();
+                format!(
+                    "[sync] leader = {leader:?}: no board has that name (the boards: {})",
+                    names.join(", ")
+                )
+            })?;
+        self.sync = Some(RigSync { leader: index });
+        Ok(())
     }
 
     /// The rig of `plan`'s shares of `whole`, boards named `board-K`, no ports.
@@ -211,6 +249,7 @@ impl Rig {
             kind,
             camera_rate_hz,
             boards,
+            sync: None,
         })
     }
 
@@ -243,6 +282,25 @@ impl Rig {
         let _ = writeln!(out, "board = {:?}", self.kind.name());
         if let Some(rate) = self.camera_rate_hz {
             let _ = writeln!(out, "camera_rate_hz = {rate}");
+        }
+        match self.sync {
+            Some(sync) => {
+                let _ = writeln!(
+                    out,
+                    "\n# The sync line wired to every board; its leader drives it (rig capture starts\n\
+                     # every board on the same camera frame with it).\n[sync]\nleader = {:?}",
+                    self.boards[sync.leader].name
+                );
+            }
+            None => {
+                let _ = writeln!(
+                    out,
+                    "\n# Without a sync line, `rig capture` cannot start the boards on one camera\n\
+                     # frame. Wire one GPIO to every board (STM32H743: PF13) and uncomment:\n\
+                     # [sync]\n# leader = {:?}",
+                    self.boards.first().map_or("board-0", |b| b.name.as_str())
+                );
+            }
         }
         for (k, b) in self.boards.iter().enumerate() {
             let _ = writeln!(out, "\n[[boards]]");
@@ -352,6 +410,17 @@ mod tests {
             assert_eq!(a.config, b.config);
         }
         assert_eq!(back.camera_rate_hz, Some(1000.0));
+        assert_eq!(back.sync, None);
+        // With a sync line: its leader by name, back as the same board.
+        let mut synced = rig.clone();
+        synced.set_sync_leader("board-2").unwrap();
+        std::fs::write(&path, synced.to_toml(Path::new("canary.toml"), None)).unwrap();
+        assert_eq!(Rig::load(&path).unwrap().sync, Some(RigSync { leader: 2 }));
+        let e = synced.set_sync_leader("board-9").unwrap_err();
+        assert!(
+            e.contains("no board has that name") && e.contains("board-0, board-1, board-2"),
+            "{e}"
+        );
     }
 
     #[test]
@@ -397,6 +466,15 @@ mod tests {
             (
                 board("a", "", 0, 112, all(0, 49) + ", 49"),
                 "sub-aperture 49 does not exist",
+            ),
+            (
+                "[sync]\nleader = \"c\"\n".to_string() + &board("a", "", 0, 112, all(0, 49)),
+                "[sync] leader = \"c\": no board has that name (the boards: a)",
+            ),
+            (
+                "[sync]\nleader = \"a\"\nline = 3\n".to_string()
+                    + &board("a", "", 0, 112, all(0, 49)),
+                "unknown field `line`",
             ),
         ];
         for (boards, expected) in cases {

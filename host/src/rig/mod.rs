@@ -20,7 +20,7 @@ mod part;
 mod plan;
 mod run;
 
-pub use file::{describe_load, Rig, RigBoard, RigError};
+pub use file::{describe_load, Rig, RigBoard, RigError, RigSync};
 pub use merge::{BoardCounts, MergedFrame, Merger};
 pub use part::{board_config, Rectangle};
 pub use plan::{
@@ -28,5 +28,5 @@ pub use plan::{
     PlanError, DCMI_MAX_PIXEL_CLOCK_HZ, SLOPE_ENTRY_MAX_BYTES, USB_FULL_SPEED_BYTES_PER_S,
 };
 pub use run::{
-    check_configurations, configure, stream, BoardRun, RigRun, RigStartError, RigStream,
+    check_configurations, configure, stream, BoardRun, RigRun, RigStart, RigStartError, RigStream,
 };

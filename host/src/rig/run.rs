@@ -9,10 +9,12 @@ use std::time::{Duration, Instant};
 
 use brightpix_protocol::wire::tables::config_digest;
 
+use brightpix_protocol::wire::CaptureStart;
+
 use super::file::Rig;
 use super::merge::{BoardCounts, MergedFrame, Merger};
 use crate::link::verify::Verifier;
-use crate::link::{Client, FrameOutcome, FrameSlopes, LinkError, StreamReport};
+use crate::link::{CaptureBegan, Client, FrameOutcome, FrameSlopes, LinkError, StreamReport};
 
 /// Why a rig could not start.
 #[derive(Debug, thiserror::Error)]
@@ -73,6 +75,8 @@ pub struct BoardRun {
     pub counts: BoardCounts,
     /// The highest frame number it gave an outcome for.
     pub last_frame: Option<u32>,
+    /// How its capture began (`rig capture`), if it said.
+    pub began: Option<CaptureBegan>,
 }
 
 impl BoardRun {
@@ -99,11 +103,38 @@ pub struct RigRun {
     pub frames_partial: u64,
     pub verifier: Option<Verifier>,
     pub elapsed: Duration,
+    /// How the capture started the boards (`rig capture`).
+    pub start: Option<RigStart>,
+}
+
+/// How `rig capture` starts its boards (PROTOCOL.md §9).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RigStart {
+    /// Every board at once, each on the first frame start after its own
+    /// request: on hardware they may begin on different camera frames.
+    Immediate,
+    /// On the sync line: every board but `leader` armed (`OnSync`) first;
+    /// only when all are is the leader's capture (`DriveSync`) sent; all
+    /// begin on the frame after the leader's edge.
+    Sync { leader: usize },
+}
+
+impl RigStart {
+    /// The board whose first camera frame the merge is numbered from.
+    pub fn reference_board(self) -> usize {
+        match self {
+            RigStart::Immediate => 0,
+            RigStart::Sync { leader } => leader,
+        }
+    }
 }
 
 enum Event {
     Outcome(usize, FrameOutcome),
     Ended(usize, Result<StreamReport, LinkError>),
+    /// A follower is armed on the sync line.
+    Armed,
+    Began(usize, CaptureBegan),
 }
 
 /// A rig run in batches: each [`RigStream::run`] streams some frames (a
@@ -124,6 +155,11 @@ pub struct RigStream<'r> {
     /// Per board, the highest frame number it gave an outcome for (a
     /// capture's camera frames run to it).
     last_frames: Vec<Option<u32>>,
+    /// Per board, how its capture began.
+    began: Vec<Option<CaptureBegan>>,
+    start: Option<RigStart>,
+    /// The camera frame merged frame 0 is, once known (a capture).
+    base: Option<u32>,
 }
 
 impl<'r> RigStream<'r> {
@@ -143,6 +179,9 @@ impl<'r> RigStream<'r> {
             partial: 0,
             started: Instant::now(),
             last_frames: vec![None; rig.boards.len()],
+            began: vec![None; rig.boards.len()],
+            start: None,
+            base: None,
         }
     }
 
@@ -196,6 +235,7 @@ impl<'r> RigStream<'r> {
                         self.errors[b] = Some(e);
                         self.merger.board_gone(b)
                     }
+                    Event::Armed | Event::Began(..) => Vec::new(),
                 };
                 let mut pixels = |f: u32| frames.get(f.wrapping_sub(first_frame) as usize).cloned();
                 self.deliver(merged, &mut pixels, on_frame);
@@ -203,37 +243,90 @@ impl<'r> RigStream<'r> {
         });
     }
 
-    /// Captures `count` frames with every board's own camera at once (one
-    /// client each, in board order) and merges frame `k` of every board's
-    /// capture. That is one camera frame only if every board started
-    /// counting at the same camera frame: simulated cameras of one seed
-    /// begin their sequence at each capture's start, so they do; boards on
-    /// real hardware, each numbering frames from the first VSYNC after its
-    /// own `Capture`, need a common start or a frame counter the camera
-    /// embeds, which nothing provides yet (README, "Which frame is which,
-    /// today"). `camera_frame(k)` gives the whole camera's frame `k` for
-    /// verification. A board that falls behind the
-    /// camera skips frames: they wait for it until its capture ends, then
-    /// count as missing on its sub-apertures.
+    /// Captures `count` frames with every board's own camera (one client
+    /// each, in board order) and merges frame `k` of every board's
+    /// capture: one camera frame only if every board began on the same
+    /// one. `start` says how they begin: [`RigStart::Sync`] (the rig's
+    /// sync line) makes them; [`RigStart::Immediate`] leaves it to the
+    /// timing of each board's request (README, "Which frame is which").
+    /// `camera_frame(c)` gives the whole camera's frame `c` for
+    /// verification: merged frame `k` is checked against camera frame
+    /// `base + k`, `base` the camera frame the reference board
+    /// ([`RigStart::reference_board`]) reports it began on (0 if it does
+    /// not say), so a board that began elsewhere shows as mismatches. A
+    /// board that falls behind the camera skips frames: they wait for it
+    /// until its capture ends, then count as missing on its sub-apertures.
     pub fn capture(
         &mut self,
         clients: &mut [Client],
         count: u32,
+        start: RigStart,
         camera_frame: &mut impl FnMut(u32) -> Option<Vec<u16>>,
         on_frame: &mut impl FnMut(&MergedFrame),
     ) {
         for k in 0..count {
             self.merger.expect(k);
         }
+        self.start = Some(start);
+        let leader = match start {
+            RigStart::Immediate => None,
+            RigStart::Sync { leader } => Some(leader),
+        };
+        let followers = clients.len() - usize::from(leader.is_some());
         std::thread::scope(|scope| {
             let (tx, rx) = mpsc::channel();
+            // On the sync line every board waits for a go: the followers
+            // once armed, the leader before it is even asked; all get it
+            // once every follower is armed (or a refusal if one cannot be).
+            let mut gos = Vec::new();
             for (b, client) in clients.iter_mut().enumerate() {
                 let tx = tx.clone();
+                let role = match leader {
+                    None => CaptureStart::Immediate,
+                    Some(l) if l == b => CaptureStart::DriveSync,
+                    Some(_) => CaptureStart::OnSync,
+                };
+                let (go_tx, go_rx) = mpsc::channel::<bool>();
+                if role != CaptureStart::Immediate {
+                    gos.push(go_tx);
+                }
                 scope.spawn(move || {
                     let started = Instant::now();
-                    let result = client.capture_with(count, &mut |o| {
-                        let _ = tx.send(Event::Outcome(b, o.clone()));
-                    });
+                    let not_released = || {
+                        LinkError::Usage(
+                            "not started: another board could not be armed on the sync line".into(),
+                        )
+                    };
+                    if role == CaptureStart::DriveSync && go_rx.recv() != Ok(true) {
+                        let _ = tx.send(Event::Ended(b, Err(not_released())));
+                        return;
+                    }
+                    if let Err(e) = client.start_capture(count, role) {
+                        let _ = tx.send(Event::Ended(b, Err(e)));
+                        return;
+                    }
+                    if role == CaptureStart::OnSync {
+                        let _ = tx.send(Event::Armed);
+                        if go_rx.recv() != Ok(true) {
+                            client.send_stop_capture();
+                            let _ = tx.send(Event::Ended(b, Err(not_released())));
+                            return;
+                        }
+                    }
+                    // The board's rate counts from its first frame, not
+                    // from its wait for the others or the edge.
+                    let began_at = std::cell::Cell::new(started);
+                    let began_seen = std::cell::Cell::new(false);
+                    let result = client.collect_capture(
+                        &mut |began| {
+                            began_at.set(Instant::now());
+                            began_seen.set(true);
+                            let _ = tx.send(Event::Began(b, began));
+                        },
+                        &mut |o| {
+                            let _ = tx.send(Event::Outcome(b, o.clone()));
+                        },
+                    );
                     let result = match result {
                         Ok(outcomes) => {
                             let done = outcomes
@@ -245,17 +338,46 @@ impl<'r> RigStream<'r> {
                                 frames_done: done,
                                 frames_dropped: outcomes.len() - done,
                                 pixel_bytes: 0,
-                                elapsed: started.elapsed(),
+                                elapsed: began_at.get().elapsed(),
                             })
                         }
-                        Err(interrupted) => Err(interrupted.error),
+                        // Silence from a board armed on the line that never
+                        // began: it missed the edge.
+                        Err(interrupted) => Err(match interrupted.error {
+                            LinkError::Timeout { port, timeout, .. }
+                                if role != CaptureStart::Immediate && !began_seen.get() =>
+                            {
+                                LinkError::NoSyncEdge { port, timeout }
+                            }
+                            e => e,
+                        }),
                     };
                     let _ = tx.send(Event::Ended(b, result));
                 });
             }
             drop(tx);
+            let mut armed = 0;
+            let release = |go: bool, gos: &mut Vec<mpsc::Sender<bool>>| {
+                for g in gos.drain(..) {
+                    let _ = g.send(go);
+                }
+            };
+            if followers == 0 {
+                release(true, &mut gos);
+            }
             for event in rx {
                 let merged = match event {
+                    Event::Armed => {
+                        armed += 1;
+                        if armed == followers {
+                            release(true, &mut gos);
+                        }
+                        Vec::new()
+                    }
+                    Event::Began(b, began) => {
+                        self.began[b] = Some(began);
+                        Vec::new()
+                    }
                     Event::Outcome(b, o) => {
                         if let Some(last) = self.last_frames.get_mut(b) {
                             *last = Some(last.map_or(o.frame(), |l: u32| l.max(o.frame())));
@@ -265,15 +387,40 @@ impl<'r> RigStream<'r> {
                     Event::Ended(b, result) => {
                         match result {
                             Ok(report) => self.reports[b] = report,
-                            Err(e) => self.errors[b] = Some(e),
+                            Err(e) => {
+                                // Not armed: no board is released.
+                                release(false, &mut gos);
+                                self.errors[b] = Some(e)
+                            }
                         }
                         // Its capture is over: frames it skipped wait no more.
                         self.merger.board_gone(b)
                     }
                 };
-                self.deliver(merged, camera_frame, on_frame);
+                let base = self.capture_base(start);
+                let mut pixels = |k: u32| camera_frame(base.wrapping_add(k));
+                self.deliver(merged, &mut pixels, on_frame);
             }
         });
+    }
+
+    /// The camera frame merged frame 0 is: the reference board's, else
+    /// the first board's that said, else 0; fixed once a frame is merged.
+    fn capture_base(&mut self, start: RigStart) -> u32 {
+        if let Some(base) = self.base {
+            return base;
+        }
+        let reference = start.reference_board();
+        let known = self.began[reference]
+            .and_then(|b| b.camera_frame)
+            .or_else(|| self.began.iter().flatten().find_map(|b| b.camera_frame));
+        match known {
+            Some(base) => {
+                self.base = Some(base);
+                base
+            }
+            None => 0,
+        }
     }
 
     fn deliver(
@@ -320,12 +467,16 @@ impl<'r> RigStream<'r> {
             .zip(self.errors)
             .zip(&self.merger.counts)
             .zip(self.last_frames)
-            .map(|(((report, error), &counts), last_frame)| BoardRun {
-                report,
-                error,
-                counts,
-                last_frame,
-            })
+            .zip(self.began)
+            .map(
+                |((((report, error), &counts), last_frame), began)| BoardRun {
+                    report,
+                    error,
+                    counts,
+                    last_frame,
+                    began,
+                },
+            )
             .collect();
         RigRun {
             boards,
@@ -333,6 +484,7 @@ impl<'r> RigStream<'r> {
             frames_partial: self.partial,
             verifier: self.verifier,
             elapsed: self.started.elapsed(),
+            start: self.start,
         }
     }
 }
@@ -366,6 +518,7 @@ mod tests {
             error: None,
             counts: BoardCounts::default(),
             last_frame: None,
+            began: None,
         }
     }
 

@@ -7,9 +7,18 @@
 //! - [`CameraFrames`]: frame `k` of seed `SEED` for a camera geometry: the
 //!   paper's CANARY NGS spots (16x16 pixels each) tiled from the top-left
 //!   corner as `brightpix demo` tiles them, the simulator's background
-//!   elsewhere, saturated at the camera's bit depth. Every capture starts
-//!   at frame 0, so `capture --verify` regenerates exactly what the device
-//!   saw from the seed and the configured camera.
+//!   elsewhere, saturated at the camera's bit depth. A device's camera of
+//!   its own starts every capture at frame 0 (a camera triggered by the
+//!   capture), so `capture --verify` regenerates exactly what the device
+//!   saw from the seed and the configured camera. Boards of a rig share
+//!   one free-running camera instead ([`SharedCamera`]: one timeline, one
+//!   sync line): each begins on the camera frame current at its own start,
+//!   reports it (`CaptureBegan.camera_frame`), and `rig capture --verify`
+//!   regenerates from there.
+//! - [`CameraOptions::begin`]: the board's start of a capture played on
+//!   its camera (its DMA and sync glue): armed, then the first frame
+//!   (after the start delay of a shared camera's test knob, and on the
+//!   sync line after the edge).
 //! - [`InProcessCamera`]: for the in-process device, a thread that plays
 //!   camera and DMA: it writes each frame into the ring as a rolling
 //!   readout (a few rows at a time across the frame period) at its frame
@@ -22,9 +31,11 @@
 //! module's thread, on the QEMU board by its own camera task.
 //! - [`QemuCameraHost`]: for the QEMU board, whose own task paces the
 //!   frames (`firmware/boards/qemu/src/camera.rs`): the host answers each
-//!   capture request the board appends to `DIR/requests` by writing that
-//!   capture's frames into the FIFO `DIR/camera-ID.fifo`, which the board
-//!   reads through semihosting.
+//!   capture request the board appends to `DIR/requests` (`armed-ID` once
+//!   armed on the sync line) by writing a header (synced, camera frame)
+//!   and that capture's frames into the FIFO `DIR/camera-ID.fifo`, which
+//!   the board reads through semihosting (firmware/README.md, "The
+//!   simulated camera").
 
 use std::fs::File;
 use std::io::{self, Read as _, Write as _};
@@ -37,8 +48,11 @@ use std::thread::{self, JoinHandle};
 use std::time::{Duration, Instant};
 
 use brightpix_firmware::camera::{DataWidth, SensorCrop, SoftRing};
+use brightpix_firmware::device::CaptureBegin;
+use brightpix_protocol::wire::CaptureStart;
 use brightpix_protocol::Camera;
 
+use super::timeline::{sleep_until, SharedCamera};
 use super::{make_fifo, spawn};
 use crate::simulator::{SimulationParams, Simulator};
 
@@ -84,11 +98,100 @@ impl std::fmt::Display for CameraSpec {
 }
 
 /// A simulated device's camera: what it shows and how fast.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug)]
 pub struct CameraOptions {
     pub spec: CameraSpec,
     /// Frames per second (at least 1).
     pub fps: u32,
+    /// One camera shared with other boards, and this board's index on it
+    /// ([`SharedCamera::board`]: its timeline and sync line; `spec` and
+    /// `fps` are its own); `None`: a camera of the device's own, whose
+    /// frames restart at 0 with every capture and which has no sync line.
+    pub shared: Option<(Arc<SharedCamera>, usize)>,
+}
+
+impl CameraOptions {
+    /// A camera of the device's own.
+    pub fn own(spec: CameraSpec, fps: u32) -> CameraOptions {
+        CameraOptions {
+            spec,
+            fps,
+            shared: None,
+        }
+    }
+
+    /// Whether the camera has a sync line (only a shared one can).
+    pub fn has_sync_line(&self) -> bool {
+        self.shared.as_ref().is_some_and(|(c, _)| c.has_sync_line())
+    }
+
+    /// Plays the board's start of a capture (its DMA and sync glue) on
+    /// this camera: calls `armed` once the capture is armed, waits for its
+    /// first frame's start, and gives that frame's number in the sequence
+    /// of [`CameraFrames`] and what the board reports of it; `None` if
+    /// `quit` first (the capture ended).
+    pub fn begin(
+        &self,
+        start: CaptureStart,
+        quit: &dyn Fn() -> bool,
+        armed: &mut dyn FnMut(),
+    ) -> Option<(u64, CaptureBegin)> {
+        let Some((camera, board)) = &self.shared else {
+            armed();
+            let own = CaptureBegin {
+                synced: false,
+                camera_frame: None,
+            };
+            return Some((0, own));
+        };
+        // The request reaches the board's camera late (the test knob).
+        if !sleep_until(Instant::now() + camera.start_delay(*board), quit) {
+            return None;
+        }
+        let (first, synced) = match start {
+            CaptureStart::Immediate => {
+                armed();
+                (camera.next_frame_after(Instant::now()), false)
+            }
+            CaptureStart::OnSync => {
+                let arming = camera.arm();
+                armed();
+                (camera.wait_edge(arming, quit)? + 1, true)
+            }
+            CaptureStart::DriveSync => {
+                armed();
+                (camera.drive(quit)? + 1, true)
+            }
+        };
+        if !sleep_until(camera.frame_start(first), quit) {
+            return None;
+        }
+        let began = CaptureBegin {
+            synced,
+            camera_frame: Some(first as u32),
+        };
+        Some((first, began))
+    }
+
+    /// When frame `k` of a capture whose first frame started at `origin`
+    /// starts: on the shared timeline, or `k` periods after `origin`.
+    fn frame_start(&self, origin: Instant, first: u64, k: u64) -> Instant {
+        match &self.shared {
+            Some((camera, _)) => camera.frame_start(first + k),
+            None => origin + period(self.fps).mul_f64(k as f64),
+        }
+    }
+
+    /// A capture that drove the sync line ended: the line goes low.
+    fn ended(&self, start: CaptureStart) {
+        if let (Some((camera, _)), CaptureStart::DriveSync) = (&self.shared, start) {
+            camera.lower();
+        }
+    }
+}
+
+fn period(fps: u32) -> Duration {
+    Duration::from_secs_f64(1.0 / f64::from(fps.max(1)))
 }
 
 /// The simulated camera's frames for one geometry and seed (see the module
@@ -151,16 +254,22 @@ impl CameraFrames {
     }
 }
 
-/// Frames generated ahead, in batches, on a thread of their own; the
-/// thread ends when the receiver is dropped.
-fn frames_ahead(camera: Camera, seed: u64, batch: usize) -> io::Result<mpsc::Receiver<Vec<u16>>> {
+/// Frames `first ..` generated ahead, in batches, on a thread of their
+/// own; the thread ends when the receiver is dropped.
+fn frames_ahead(
+    camera: Camera,
+    seed: u64,
+    first: u64,
+    batch: usize,
+) -> io::Result<mpsc::Receiver<Vec<u16>>> {
     let (tx, rx) = mpsc::sync_channel(batch);
     spawn("brightpix-camera-frames", move || {
         let frames = CameraFrames::new(camera, seed);
-        let mut first = 0u64;
+        let start = first;
+        let mut first = first;
         loop {
             // The first frame alone, as soon as it can be.
-            let n = if first == 0 { 1 } else { batch };
+            let n = if first == start { 1 } else { batch };
             for frame in frames.frames(first, n) {
                 if tx.send(frame).is_err() {
                     return;
@@ -192,6 +301,7 @@ pub struct InProcessCamera {
 
 impl InProcessCamera {
     pub fn start(ring: Arc<CameraRing>, options: CameraOptions) -> io::Result<InProcessCamera> {
+        ring.set_sync_line(options.has_sync_line());
         let stop = Arc::new(AtomicBool::new(false));
         let flag = stop.clone();
         let thread = spawn("brightpix-sim-camera", move || {
@@ -214,7 +324,7 @@ impl Drop for InProcessCamera {
 }
 
 fn run_in_process(ring: &CameraRing, options: CameraOptions, stop: &AtomicBool) {
-    let period = Duration::from_secs_f64(1.0 / f64::from(options.fps.max(1)));
+    let period = period(options.fps);
     let mut last = 0;
     while !stop.load(Ordering::Relaxed) {
         let capture = match ring.capture() {
@@ -225,20 +335,32 @@ fn run_in_process(ring: &CameraRing, options: CameraOptions, stop: &AtomicBool) 
             }
         };
         last = capture.id;
-        let Ok(frames) = frames_ahead(capture.sensor(), options.spec.seed, BATCH) else {
+        let quit = || stop.load(Ordering::Relaxed) || !ring.is_running(capture.id);
+        let begun = options.begin(capture.start, &quit, &mut || ring.arm(capture.id));
+        let Some((first, began)) = begun else {
+            options.ended(capture.start);
+            continue;
+        };
+        ring.begin(capture.id, began);
+        let Ok(frames) = frames_ahead(capture.sensor(), options.spec.seed, first, BATCH) else {
+            options.ended(capture.start);
             continue;
         };
         let mut crop = SensorCrop::new(IN_PROCESS_BUS, capture.camera, capture.crop);
-        let mut start = Instant::now();
+        let origin = Instant::now();
+        let mut k = 0u64;
         'frames: while !stop.load(Ordering::Relaxed) {
             let Ok(frame) = frames.recv() else { break };
             let mut words = vec![0; frame.len() / 2 + 1];
             let n = crop.keep_packed(&frame, &mut words);
             crop.end_frame();
             words.truncate(n);
+            // A late frame is written late, never skipped: frame numbers
+            // stay the camera's.
+            let start = options.frame_start(origin, first, k);
             let piece = words.len().div_ceil(READOUT_PIECES).max(1);
             for (i, part) in words.chunks(piece).enumerate() {
-                sleep_until(
+                sleep_until_or_stop(
                     start + period.mul_f64(i as f64 / READOUT_PIECES as f64),
                     stop,
                 );
@@ -249,15 +371,14 @@ fn run_in_process(ring: &CameraRing, options: CameraOptions, stop: &AtomicBool) 
             if !ring.end_frame(capture.id) {
                 break;
             }
-            // The next frame one period after this one began; a late one
-            // does not catch up.
-            start = (start + period).max(Instant::now());
-            sleep_until(start, stop);
+            k += 1;
+            sleep_until_or_stop(options.frame_start(origin, first, k), stop);
         }
+        options.ended(capture.start);
     }
 }
 
-fn sleep_until(at: Instant, stop: &AtomicBool) {
+fn sleep_until_or_stop(at: Instant, stop: &AtomicBool) {
     loop {
         let now = Instant::now();
         if now >= at || stop.load(Ordering::Relaxed) {
@@ -279,13 +400,13 @@ pub struct QemuCameraHost {
 
 impl QemuCameraHost {
     /// Serves captures in `dir` (created, with an empty `requests` file).
-    pub fn start(dir: &Path, spec: CameraSpec) -> io::Result<QemuCameraHost> {
+    pub fn start(dir: &Path, options: CameraOptions) -> io::Result<QemuCameraHost> {
         std::fs::create_dir_all(dir)?;
         File::create(dir.join("requests"))?;
         let stop = Arc::new(AtomicBool::new(false));
         let (flag, path) = (stop.clone(), dir.to_path_buf());
         let thread = spawn("brightpix-qemu-camera", move || {
-            serve_requests(&path, spec, &flag)
+            serve_requests(&path, &options, &flag)
         })?;
         Ok(QemuCameraHost {
             dir: dir.to_path_buf(),
@@ -309,8 +430,8 @@ impl Drop for QemuCameraHost {
     }
 }
 
-/// A capture request: `capture ID WIDTH HEIGHT BIT_DEPTH`.
-fn parse_request(line: &str) -> Option<(u32, Camera)> {
+/// A capture request: `capture ID WIDTH HEIGHT BIT_DEPTH START`.
+fn parse_request(line: &str) -> Option<(u32, Camera, CaptureStart)> {
     let mut words = line.split_whitespace();
     if words.next()? != "capture" {
         return None;
@@ -321,10 +442,16 @@ fn parse_request(line: &str) -> Option<(u32, Camera)> {
         height: words.next()?.parse().ok()?,
         bit_depth: words.next()?.parse().ok()?,
     };
-    words.next().is_none().then_some((id, camera))
+    let start = match words.next()? {
+        "immediate" => CaptureStart::Immediate,
+        "on-sync" => CaptureStart::OnSync,
+        "drive-sync" => CaptureStart::DriveSync,
+        _ => return None,
+    };
+    words.next().is_none().then_some((id, camera, start))
 }
 
-fn serve_requests(dir: &Path, spec: CameraSpec, stop: &Arc<AtomicBool>) {
+fn serve_requests(dir: &Path, options: &CameraOptions, stop: &Arc<AtomicBool>) {
     let Ok(mut requests) = File::open(dir.join("requests")) else {
         return;
     };
@@ -338,7 +465,7 @@ fn serve_requests(dir: &Path, spec: CameraSpec, stop: &Arc<AtomicBool>) {
         pending.push_str(&text);
         while let Some(end) = pending.find('\n') {
             let line: String = pending.drain(..=end).collect();
-            let Some((id, camera)) = parse_request(&line) else {
+            let Some((id, camera, start)) = parse_request(&line) else {
                 eprintln!("brightpix: the QEMU camera ignored the request {line:?}");
                 continue;
             };
@@ -346,15 +473,21 @@ fn serve_requests(dir: &Path, spec: CameraSpec, stop: &Arc<AtomicBool>) {
             for (done, _) in &writers {
                 done.store(true, Ordering::Relaxed);
             }
-            let fifo = dir.join(format!("camera-{id}.fifo"));
-            if make_fifo(&fifo).is_err() {
-                continue;
-            }
             let done = Arc::new(AtomicBool::new(false));
-            let (flag, all) = (done.clone(), stop.clone());
+            let (flag, all, dir, options) = (
+                done.clone(),
+                stop.clone(),
+                dir.to_path_buf(),
+                options.clone(),
+            );
             if let Ok(t) = spawn("brightpix-qemu-camera-frames", move || {
-                write_frames(&fifo, camera, spec.seed, &flag, &all);
-                let _ = std::fs::remove_file(&fifo);
+                let capture = QemuCapture {
+                    dir: &dir,
+                    id,
+                    camera,
+                    start,
+                };
+                capture.serve(&options, &flag, &all);
             }) {
                 writers.push((done, t));
             }
@@ -368,37 +501,82 @@ fn serve_requests(dir: &Path, spec: CameraSpec, stop: &Arc<AtomicBool>) {
     }
 }
 
-/// Writes the frames of one capture into `fifo` until the board closes it
-/// or `done`/`stop`.
-fn write_frames(fifo: &Path, camera: Camera, seed: u64, done: &AtomicBool, stop: &AtomicBool) {
-    let quit = || done.load(Ordering::Relaxed) || stop.load(Ordering::Relaxed);
-    // Non-blocking open: fails until the board has opened its end.
-    let started = Instant::now();
-    let mut file = loop {
-        match std::fs::OpenOptions::new()
-            .write(true)
-            .custom_flags(libc::O_NONBLOCK)
-            .open(fifo)
-        {
-            Ok(f) => break f,
-            Err(_) if quit() || started.elapsed() > Duration::from_secs(30) => return,
-            Err(_) => thread::sleep(Duration::from_millis(1)),
+/// One capture of the QEMU board, as its camera task asked for it.
+struct QemuCapture<'a> {
+    dir: &'a Path,
+    id: u32,
+    camera: Camera,
+    start: CaptureStart,
+}
+
+impl QemuCapture<'_> {
+    /// Plays the board's start (`DIR/armed-ID` once armed on the sync
+    /// line), then makes `DIR/camera-ID.fifo` when the capture begins and
+    /// writes its header and frames until the board closes it or
+    /// `done`/`stop`.
+    fn serve(&self, options: &CameraOptions, done: &AtomicBool, stop: &AtomicBool) {
+        let quit = || done.load(Ordering::Relaxed) || stop.load(Ordering::Relaxed);
+        let armed_file = self.dir.join(format!("armed-{}", self.id));
+        let fifo = self.dir.join(format!("camera-{}.fifo", self.id));
+        let mut armed = || {
+            if self.start != CaptureStart::Immediate {
+                let _ = File::create(&armed_file);
+            }
+        };
+        if let Some((first, began)) = options.begin(self.start, &quit, &mut armed) {
+            if make_fifo(&fifo).is_ok() {
+                self.write_frames(&fifo, options.spec.seed, first, began, &quit);
+            }
         }
-    };
-    if set_blocking(&file).is_err() {
-        return;
+        options.ended(self.start);
+        let _ = std::fs::remove_file(&fifo);
+        let _ = std::fs::remove_file(&armed_file);
     }
-    let Ok(frames) = frames_ahead(camera, seed, BATCH) else {
-        return;
-    };
-    let mut bytes = Vec::new();
-    while !quit() {
-        let Ok(frame) = frames.recv() else { return };
-        bytes.clear();
-        bytes.extend(frame.iter().flat_map(|p| p.to_le_bytes()));
-        // Blocks while the FIFO is full; fails once the board closed it.
-        if file.write_all(&bytes).is_err() {
+
+    /// The header (`SYNCED CAMERA_FRAME`, u32 LE each), then frames
+    /// `first ..` into `fifo` for as long as the board reads.
+    fn write_frames(
+        &self,
+        fifo: &Path,
+        seed: u64,
+        first: u64,
+        began: CaptureBegin,
+        quit: &dyn Fn() -> bool,
+    ) {
+        // Non-blocking open: fails until the board has opened its end.
+        let started = Instant::now();
+        let mut file = loop {
+            match std::fs::OpenOptions::new()
+                .write(true)
+                .custom_flags(libc::O_NONBLOCK)
+                .open(fifo)
+            {
+                Ok(f) => break f,
+                Err(_) if quit() || started.elapsed() > Duration::from_secs(30) => return,
+                Err(_) => thread::sleep(Duration::from_millis(1)),
+            }
+        };
+        if set_blocking(&file).is_err() {
             return;
+        }
+        let mut header = Vec::with_capacity(8);
+        header.extend(u32::from(began.synced).to_le_bytes());
+        header.extend(began.camera_frame.unwrap_or(first as u32).to_le_bytes());
+        if file.write_all(&header).is_err() {
+            return;
+        }
+        let Ok(frames) = frames_ahead(self.camera, seed, first, BATCH) else {
+            return;
+        };
+        let mut bytes = Vec::new();
+        while !quit() {
+            let Ok(frame) = frames.recv() else { return };
+            bytes.clear();
+            bytes.extend(frame.iter().flat_map(|p| p.to_le_bytes()));
+            // Blocks while the FIFO is full; fails once the board closed it.
+            if file.write_all(&bytes).is_err() {
+                return;
+            }
         }
     }
 }
@@ -461,17 +639,19 @@ mod tests {
     #[test]
     fn requests_parse() {
         assert_eq!(
-            parse_request("capture 3 112 112 16\n"),
+            parse_request("capture 3 112 112 16 on-sync\n"),
             Some((
                 3,
                 Camera {
                     width: 112,
                     height: 112,
                     bit_depth: 16
-                }
+                },
+                CaptureStart::OnSync
             ))
         );
-        assert_eq!(parse_request("capture 3 112 112"), None);
+        assert_eq!(parse_request("capture 3 112 112 16"), None);
+        assert_eq!(parse_request("capture 3 112 112 16 later"), None);
         assert_eq!(parse_request("stop 3"), None);
     }
 

@@ -166,8 +166,8 @@ impl InProcessDevice {
             tx: outlet,
         };
         let (sizes, board) = (options.sizes, options.board);
-        let ring = options.camera.map(|_| Arc::new(CameraRing::new()));
-        let camera = match (&ring, options.camera) {
+        let ring = options.camera.as_ref().map(|_| Arc::new(CameraRing::new()));
+        let camera = match (&ring, options.camera.clone()) {
             (Some(ring), Some(camera)) => Some(InProcessCamera::start(ring.clone(), camera)?),
             _ => None,
         };

@@ -20,6 +20,7 @@
 //! | `in_process.rs` | [`InProcessDevice`] and its options |
 //! | `qemu.rs` | [`QemuDevice`], and finding or building its ELF |
 //! | `camera.rs` | the simulated camera: its frames, the in-process camera thread, the QEMU board's frame server |
+//! | `timeline.rs` | [`SharedCamera`]: one camera for several boards, its timeline and sync line |
 //! | `link.rs` | the in-process device's transports (pty, Unix socket, pixel FIFO) and executor |
 //! | `storage.rs` | [`HeapDeviceStorage`]: a board's statics on the heap |
 
@@ -28,6 +29,7 @@ mod in_process;
 mod link;
 mod qemu;
 mod storage;
+pub mod timeline;
 
 use std::ffi::CString;
 use std::io;
@@ -44,6 +46,7 @@ pub use qemu::{
     QemuCpu, QemuDevice, QemuOptions,
 };
 pub use storage::{HeapDeviceStorage, SimSizes};
+pub use timeline::SharedCamera;
 
 static DIR_COUNTER: AtomicU64 = AtomicU64::new(0);
 

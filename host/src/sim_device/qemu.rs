@@ -245,16 +245,20 @@ impl QemuDevice {
         if let Some(path) = &fifo {
             board_args.extend(["--pixels".to_string(), path.display().to_string()]);
         }
-        let camera = match options.camera {
+        let camera = match options.camera.clone() {
             Some(camera) => {
-                let host = QemuCameraHost::start(&dir.join("camera"), camera.spec)
+                let (fps, sync) = (camera.fps.max(1), camera.has_sync_line());
+                let host = QemuCameraHost::start(&dir.join("camera"), camera)
                     .context("starting the simulated camera's frame server")?;
                 board_args.extend([
                     "--camera".to_string(),
                     host.dir().display().to_string(),
                     "--camera-fps".to_string(),
-                    camera.fps.max(1).to_string(),
+                    fps.to_string(),
                 ]);
+                if sync {
+                    board_args.push("--camera-sync".to_string());
+                }
                 Some(host)
             }
             None => None,

@@ -234,10 +234,7 @@ mod tests {
     fn device(socket: &std::path::Path) -> InProcessDevice {
         InProcessDevice::start(InProcessOptions {
             link: SimLinkKind::Unix(socket.to_path_buf()),
-            camera: Some(CameraOptions {
-                spec: CameraSpec { seed: 3 },
-                fps: 200,
-            }),
+            camera: Some(CameraOptions::own(CameraSpec { seed: 3 }, 200)),
             ..InProcessOptions::default()
         })
         .unwrap()

@@ -48,6 +48,7 @@
 //! prefix with [`hello_prefix`] and report [`VersionMismatch`].
 
 pub mod bench;
+pub mod capture;
 pub mod frame;
 pub mod health;
 pub mod tables;
@@ -64,6 +65,7 @@ pub use bench::{
     BenchFault, BenchFigures, BenchLimit, BenchReport, BenchResult, CountUnit, FloorCheck, Spread,
     ALL_WORKLOADS, MAX_WORKLOAD_NAME_LEN,
 };
+pub use capture::{CaptureStart, SyncFault};
 pub use frame::{
     decode, decode_body, encode, hello_in_body, hello_prefix, unstuff, Crc32Digest, FrameReader,
     Received, WireError, CRC32, CRC_LEN,
@@ -85,9 +87,13 @@ pub use tables::{PixelRowsPlan, UploadPlan};
 /// sensor (`ConfigHeader.crop`, `DeviceError::Crop`). Version 5: the
 /// engine's counters in `Status` (`Status.engine`), and the bench request
 /// (`HostMessage::Bench`, `DeviceMessage::BenchReport`, `Ack::BenchDone`,
-/// `DeviceError::Bench`).
+/// `DeviceError::Bench`). Version 6: a capture's start (`Capture.start`:
+/// at once, or on a rig's sync line, followed or driven), `CaptureStarted`
+/// sent once the capture is armed, `DeviceMessage::CaptureBegan` (how the
+/// first frame began: on the sync edge or not, its camera frame if the
+/// camera numbers them), `DeviceError::Sync`.
 /// PROTOCOL.md §12 lists every version.
-pub const PROTOCOL_VERSION: u16 = 5;
+pub const PROTOCOL_VERSION: u16 = 6;
 
 /// Largest postcard encoding of a message that every frame buffer holds.
 pub const MAX_MESSAGE_LEN: usize = 1024;
@@ -213,8 +219,10 @@ pub enum HostMessage<'a> {
         pixels: &'a [u8],
     },
     /// Starts the device's own camera for `frames` frames (0: until
-    /// `StopCapture`). Reply: `Ack(CaptureStarted)` or `Error`.
-    Capture { frames: u32 },
+    /// `StopCapture`), its first frame as `start` says (PROTOCOL.md §9).
+    /// Reply: `Ack(CaptureStarted)` once the capture is armed, or `Error`;
+    /// then [`DeviceMessage::CaptureBegan`] before the first results.
+    Capture { frames: u32, start: CaptureStart },
     /// Stops the camera. Reply: `Ack(CaptureStopped)`.
     StopCapture,
     /// Measures the engine on the board's own workloads (`workload`: one
@@ -350,6 +358,17 @@ pub enum DeviceMessage<'a> {
     },
     /// One workload of a `Bench` request.
     BenchReport(#[serde(borrow)] BenchReport<'a>),
+    /// A capture's frame 0 has begun; sent before its first results.
+    /// `synced`: it is the first frame start after a sync edge the device
+    /// saw (`OnSync`, `DriveSync`), i.e. the same camera frame as every
+    /// other board of that edge; `false` for `Immediate`. `camera_frame`:
+    /// the camera's own number of that frame, when the device can know it
+    /// (a simulated camera; a camera that embeds a frame counter), else
+    /// `None`.
+    CaptureBegan {
+        synced: bool,
+        camera_frame: Option<u32>,
+    },
 }
 
 /// The device's identity and limits. The first two fields are frozen.
@@ -589,6 +608,8 @@ pub enum DeviceError {
     Crop(CropFault),
     /// A `Bench` request was refused; nothing was measured.
     Bench(BenchFault),
+    /// A `Capture` on the sync line was refused; nothing was started.
+    Sync(SyncFault),
 }
 
 /// Why a device's camera interface cannot capture a crop rectangle (the
@@ -1109,6 +1130,7 @@ impl fmt::Display for DeviceError {
                 "the device's camera interface cannot crop this rectangle: {fault}"
             ),
             Bench(fault) => write!(f, "bench refused: {fault}"),
+            Sync(fault) => write!(f, "capture on the sync line refused: {fault}"),
         }
     }
 }

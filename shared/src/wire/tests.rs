@@ -87,7 +87,10 @@ fn host_examples(payload: &[u8]) -> Vec<HostMessage<'_>> {
             first_pixel: u32::MAX,
             pixels: &payload[..MAX_PIXEL_BYTES],
         },
-        HostMessage::Capture { frames: u32::MAX },
+        HostMessage::Capture {
+            frames: u32::MAX,
+            start: CaptureStart::DriveSync,
+        },
         HostMessage::StopCapture,
     ];
     // Every kind is present (MessageKind is matched exhaustively in kind()).
@@ -423,8 +426,11 @@ fn encoding_is_as_documented() {
         [0x06, 0x05, 0x02, 0x1b, 0x68, 0xa2, 0x00]
     );
     assert_eq!(
-        enc_host(HostMessage::Capture { frames: 0 }),
-        [0x02, 0x08, 0x03, 0xf7, 0x98, 0x02, 0x89, 0x00]
+        enc_host(HostMessage::Capture {
+            frames: 0,
+            start: CaptureStart::Immediate
+        }),
+        [0x02, 0x08, 0x01, 0x05, 0xaa, 0x88, 0x52, 0xf1, 0x00]
     );
     assert_eq!(
         enc_host(HostMessage::Hello {
@@ -556,7 +562,10 @@ fn corrupted_frames_are_rejected() {
 fn frame_reader_cuts_streams() {
     let messages = [
         HostMessage::StatusRequest,
-        HostMessage::Capture { frames: 3 },
+        HostMessage::Capture {
+            frames: 3,
+            start: CaptureStart::OnSync,
+        },
         HostMessage::ConfigAbort,
     ];
     let mut stream = vec![0u8]; // a leading delimiter is ignored
@@ -732,7 +741,7 @@ fn schema_hash_is_pinned() {
     );
 }
 
-const PINNED_SCHEMA_HASH: u64 = 0x85e0_2ee3_8cbf_f4ef;
+const PINNED_SCHEMA_HASH: u64 = 0xf4c1_09f4_4e2c_7b2f;
 
 fn hash_of<T: Schema + ?Sized>() -> u64 {
     u64::from_le_bytes(hash_ty_path::<T>(WIRE_CONVENTIONS))
@@ -850,7 +859,7 @@ fn schema_covers_every_message_and_config_type() {
     let DataModelType::Enum(device) = DeviceMessage::SCHEMA.ty else {
         panic!("DeviceMessage is an enum")
     };
-    assert_eq!(device.len(), 7);
+    assert_eq!(device.len(), 8);
     assert_eq!(device[0].name, "HelloReply");
     let DataModelType::Enum(config_errors) = ConfigFault::SCHEMA.ty else {
         panic!()

@@ -220,7 +220,8 @@ ACKS = ["UploadStarted", "ChunkStored", "ConfigApplied", "UploadAborted", "Level
         "CaptureStarted", "CaptureStopped", "BenchDone"]
 ERRORS = ["Decode", "Crc", "FrameTooLong", "HelloRequired", "Unexpected", "NoUpload",
           "UploadMismatch", "ChunkOutOfOrder", "ChunkLength", "ChunkPastEnd", "UploadIncomplete",
-          "UploadCrc", "Capacity", "Config", "NotConfigured", "Frame", "NoCamera", "Crop", "Bench"]
+          "UploadCrc", "Capacity", "Config", "NotConfigured", "Frame", "NoCamera", "Crop", "Bench",
+          "Sync"]
 COUNT_UNITS = ["Cycles", "Instructions", "Uncounted"]
 BENCH_LIMITS = ["Pixels", "Windows", "EngineMemory"]
 FLOOR_CHECKS = ["Equal", "NotComparable"]
@@ -283,6 +284,8 @@ def decode_device(body):
         return "FrameDone", dict(frame=r.varint(), count=r.varint())
     if kind == 6:
         return "BenchReport", decode_bench_report(r)
+    if kind == 7:
+        return "CaptureBegan", dict(synced=r.bool(), camera_frame=r.option(r.varint))
     raise ValueError("unknown device message %d" % kind)
 
 
@@ -676,8 +679,8 @@ def check_vectors():
                 fix = health["silicon"]["axi_sram_fix"]
                 health["silicon"] = dict(health["silicon"], axi_sram_fix=ERRATUM_FIXES.index(fix))
             assert fields["health"] == health, (fields["health"], health)
-        if kind == "BenchReport":
-            assert fields == message["BenchReport"], (fields, message)
+        if kind in ("BenchReport", "CaptureBegan"):
+            assert fields == message[kind], (fields, message)
         count += 1
     print("vectors: %d device messages decoded and the Hello encoded as in "
           "shared/protocol-vectors.json" % count)

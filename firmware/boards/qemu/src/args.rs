@@ -8,6 +8,7 @@
 //! | `--pixels PATH` | pixels also come from `PATH` (a FIFO or file the host writes, `PixelRows` frames) |
 //! | `--camera DIR` | the simulated camera: frames from the host through `DIR` (`camera.rs`) |
 //! | `--camera-fps N` | its frame rate (default 10) |
+//! | `--camera-sync` | its camera is shared with other boards and has a sync line (`Capture` on the line) |
 //! | `--digest PATH` | board check: read `PATH` and log its length and FNV-1a hash |
 //! | `selftest=echo` | board check: UART0 echo loop instead of the device (0x04 exits) |
 //! | `selftest=panic`, `selftest=udf` | board check: the panic / HardFault exits (101 / 102) |
@@ -27,6 +28,8 @@ pub struct Options {
     pub pixels: Option<String<MAX_PATH>>,
     pub camera: Option<String<MAX_PATH>>,
     pub camera_fps: Option<u32>,
+    /// The simulated camera has a sync line shared with other boards.
+    pub camera_sync: bool,
     pub digest: Option<String<MAX_PATH>>,
     pub selftest: Option<Selftest>,
     pub reset_on_fault: bool,
@@ -87,6 +90,7 @@ impl Options {
                     options.reset_on_fault = true;
                 }
                 "--reset-on-fault" => options.reset_on_fault = true,
+                "--camera-sync" => options.camera_sync = true,
                 other => defmt::warn!("args: unknown argument {=str}, ignored", other),
             }
         }

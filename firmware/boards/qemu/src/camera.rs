@@ -8,19 +8,31 @@
 //! "The simulated camera"):
 //! 1. when a capture starts, the task writes one line to `DIR/requests`
 //!    (which it keeps open, each line after the last):
-//!    `capture ID WIDTH HEIGHT BIT_DEPTH` (ID counts captures from 1): the
-//!    whole sensor's geometry, which with a crop (a board of a rig) is
-//!    larger than the configured camera: the task keeps the rectangle of
-//!    every frame, as the STM32H743's DCMI crop does
+//!    `capture ID WIDTH HEIGHT BIT_DEPTH START` (ID counts captures from
+//!    1; START `immediate`, `on-sync` or `drive-sync`, the request's
+//!    `CaptureStart`): the whole sensor's geometry, which with a crop (a
+//!    board of a rig) is larger than the configured camera: the task keeps
+//!    the rectangle of every frame, as the STM32H743's DCMI crop does
 //!    (`brightpix_firmware::camera::SensorCrop`);
-//! 2. the host creates the FIFO `DIR/camera-ID.fifo` and writes frames of
-//!    that geometry into it, pixels as 16-bit little-endian, row after row
-//!    (a frame is `WIDTH * HEIGHT * 2` bytes), frame 0 first, for as long
-//!    as the board reads;
-//! 3. every frame period (`--camera-fps`) the task reads one frame, 4 KiB
+//! 2. on the sync line (`on-sync`, `drive-sync`; only with
+//!    `--camera-sync`), the host creates the empty file `DIR/armed-ID` once
+//!    it has armed the board on its simulated line; the task then marks the
+//!    capture armed (the device acknowledges `Capture` only then);
+//! 3. when the capture begins (the next frame start of the host's camera
+//!    timeline, or the first after the sync edge), the host creates the
+//!    FIFO `DIR/camera-ID.fifo` and writes into it an 8-byte header, `SYNCED
+//!    CAMERA_FRAME` (u32 little-endian each: 1 if the capture began on a
+//!    sync edge; the camera's number of its first frame), then frames of
+//!    that geometry from that one on, pixels as 16-bit little-endian, row
+//!    after row (a frame is `WIDTH * HEIGHT * 2` bytes), for as long as the
+//!    board reads;
+//! 4. every frame period (`--camera-fps`) the task reads one frame, 4 KiB
 //!    at a time, into the ring (yielding to the device between pieces) and
 //!    marks its end; when the capture stops it closes the FIFO, and the
 //!    host stops writing.
+//!
+//! The task polls for the files (a missing file's open fails at once), so
+//! the board keeps serving its link while it waits for the edge.
 //!
 //! A new FIFO per capture means no byte of an earlier capture can reach a
 //! later one. The frame clock does not wait for the device: a device that
@@ -31,6 +43,8 @@
 use core::fmt::Write as _;
 
 use brightpix_firmware::camera::{DataWidth, SensorCrop, SimulatedCamera, SoftRing};
+use brightpix_firmware::device::CaptureBegin;
+use brightpix_protocol::wire::CaptureStart;
 use embassy_time::{Duration, Instant, Timer};
 use heapless::String;
 use semihosting::fs::{File, OpenOptions};
@@ -90,18 +104,51 @@ pub async fn feed(dir: String<MAX_PATH>, fps: u32) {
         let camera = capture.sensor();
         let mut crop = SensorCrop::new(BUS, capture.camera, capture.crop);
         let frame_bytes = camera.pixel_count() * 2;
-        if !request(&mut requests, capture.id, camera) {
+        if !request(&mut requests, capture.id, camera, capture.start) {
             continue;
         }
-        let Some(mut file) = open_fifo(&dir, capture.id).await else {
+        if capture.start != CaptureStart::Immediate {
+            if !wait_for_file(&dir, capture.id).await {
+                continue;
+            }
+            RING.arm(capture.id);
+        }
+        // On the sync line the host makes the FIFO only after the edge.
+        let wait = match capture.start {
+            CaptureStart::Immediate => FIFO_WAIT_MS,
+            _ => WAIT_FOREVER,
+        };
+        let Some(mut file) = open_fifo(&dir, capture.id, wait).await else {
             continue;
         };
+        let mut header = [0u8; 8];
+        if let Err(e) = file.read_exact(&mut header) {
+            defmt::error!(
+                "camera: reading the host's capture header failed ({}); capture {=u32} gets no frames",
+                defmt::Debug2Format(&e),
+                capture.id
+            );
+            continue;
+        }
+        let word =
+            |k: usize| u32::from_le_bytes([header[k], header[k + 1], header[k + 2], header[k + 3]]);
+        let began = CaptureBegin {
+            synced: word(0) == 1,
+            camera_frame: Some(word(4)),
+        };
+        RING.begin(capture.id, began);
         defmt::info!(
-            "camera: capture {=u32}: {=u16}x{=u16}, {=u8} bits",
+            "camera: capture {=u32}: {=u16}x{=u16}, {=u8} bits, from camera frame {=u32}{=str}",
             capture.id,
             camera.width,
             camera.height,
-            camera.bit_depth
+            camera.bit_depth,
+            word(4),
+            if began.synced {
+                " (on the sync edge)"
+            } else {
+                ""
+            }
         );
         let mut next = Instant::now();
         let mut frames = 0u32;
@@ -184,11 +231,21 @@ fn open_requests(dir: &str) -> Option<File> {
 }
 
 /// Writes the request line of capture `id`.
-fn request(requests: &mut File, id: u32, camera: brightpix_protocol::Camera) -> bool {
+fn request(
+    requests: &mut File,
+    id: u32,
+    camera: brightpix_protocol::Camera,
+    start: CaptureStart,
+) -> bool {
     let mut line: String<64> = String::new();
+    let start = match start {
+        CaptureStart::Immediate => "immediate",
+        CaptureStart::OnSync => "on-sync",
+        CaptureStart::DriveSync => "drive-sync",
+    };
     if writeln!(
         line,
-        "capture {id} {} {} {}",
+        "capture {id} {} {} {} {start}",
         camera.width, camera.height, camera.bit_depth
     )
     .is_err()
@@ -205,9 +262,33 @@ fn request(requests: &mut File, id: u32, camera: brightpix_protocol::Camera) -> 
     true
 }
 
+/// No bound on a wait, in effect (the sync edge comes when the host releases the
+/// leader; the capture's stop ends the wait).
+const WAIT_FOREVER: u64 = 1 << 40;
+
+/// Waits until the host has made `DIR/armed-ID` (a regular file), while
+/// capture `id` runs; false if it ended first.
+async fn wait_for_file(dir: &str, id: u32) -> bool {
+    let mut path: String<MAX_PATH> = String::new();
+    if write!(path, "{dir}/armed-{id}").is_err() {
+        defmt::error!("camera: the path of armed-{=u32} is too long", id);
+        return false;
+    }
+    loop {
+        if !RING.is_running(id) {
+            return false;
+        }
+        if HostFile::open_str(&path).is_ok() {
+            return true;
+        }
+        Timer::after_millis(IDLE_POLL_MS).await;
+    }
+}
+
 /// Opens `DIR/camera-ID.fifo` once the host has made it (the open returns
-/// when the host opens it for writing), while capture `id` runs.
-async fn open_fifo(dir: &str, id: u32) -> Option<HostFile> {
+/// when the host opens it for writing), while capture `id` runs, for at
+/// most `wait_ms`.
+async fn open_fifo(dir: &str, id: u32, wait_ms: u64) -> Option<HostFile> {
     let mut path: String<MAX_PATH> = String::new();
     if write!(path, "{dir}/camera-{id}.fifo").is_err() {
         defmt::error!("camera: the FIFO path is too long");
@@ -220,7 +301,7 @@ async fn open_fifo(dir: &str, id: u32) -> Option<HostFile> {
         }
         match HostFile::open_str(&path) {
             Ok(file) => return Some(file),
-            Err(_) if started.elapsed() < Duration::from_millis(FIFO_WAIT_MS) => {
+            Err(_) if started.elapsed() < Duration::from_millis(wait_ms) => {
                 Timer::after_millis(IDLE_POLL_MS).await
             }
             Err(e) => {

@@ -128,6 +128,9 @@ fn main() -> ! {
     let camera = options
         .camera
         .map(|dir| (dir, options.camera_fps.unwrap_or(CAMERA_FPS)));
+    if camera.is_some() {
+        camera::RING.set_sync_line(options.camera_sync);
+    }
     executor::run(|spawner: Spawner| {
         spawner.spawn(serve(device).unwrap());
         if let Some((dir, fps)) = camera {

@@ -23,7 +23,7 @@
 
 use brightpix_firmware::camera::SimulatedCamera;
 use brightpix_firmware::device::{CameraRefused, LinkOnly, PixelRowsStream, PixelRun, PixelSource};
-use brightpix_protocol::wire::{CropFault, PixelSourceKind};
+use brightpix_protocol::wire::{CaptureStart, CropFault, PixelSourceKind, SyncFault};
 use brightpix_protocol::{Camera, Crop};
 use embassy_time::Timer;
 use embedded_io_async::{ErrorKind, ErrorType, Read};
@@ -115,6 +115,22 @@ impl PixelSource for BoardSource {
             BoardSource::Link(s) => s.start(camera, crop),
             BoardSource::Stream(s) => s.start(camera, crop),
             BoardSource::Camera(s) => s.start(camera, crop),
+        }
+    }
+
+    fn set_start(&mut self, start: CaptureStart) -> Result<(), SyncFault> {
+        match self {
+            BoardSource::Link(s) => s.set_start(start),
+            BoardSource::Stream(s) => s.set_start(start),
+            BoardSource::Camera(s) => s.set_start(start),
+        }
+    }
+
+    fn armed(&self) -> bool {
+        match self {
+            BoardSource::Link(s) => s.armed(),
+            BoardSource::Stream(s) => s.armed(),
+            BoardSource::Camera(s) => s.armed(),
         }
     }
 

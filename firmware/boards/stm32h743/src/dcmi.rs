@@ -74,7 +74,8 @@ use core::task::Waker;
 use brightpix_firmware::camera::{
     dcmi_check, DataWidth, DcmiCropRegisters, DmaProgress, DmaRing, FrameMarks, CACHE_LINE_BYTES,
 };
-use brightpix_protocol::wire::CropFault;
+use brightpix_firmware::device::CaptureBegin;
+use brightpix_protocol::wire::{CaptureStart, CropFault, SyncFault};
 use brightpix_protocol::{Camera, Crop};
 use embassy_stm32::dcmi::{
     D0Pin, D10Pin, D11Pin, D12Pin, D13Pin, D1Pin, D2Pin, D3Pin, D4Pin, D5Pin, D6Pin, D7Pin, D8Pin,
@@ -267,6 +268,8 @@ pub struct DcmiRing {
     width: DataWidth,
     /// The crop the next `start` programs (`None`: the whole frame).
     crop: Option<DcmiCropRegisters>,
+    /// How the next `start` begins (`sync.rs`).
+    start: CaptureStart,
     _pins: DcmiPins,
     _dcmi: Peri<'static, DCMI>,
     _dma: Peri<'static, DMA1_CH0>,
@@ -311,6 +314,7 @@ impl DcmiRing {
             request,
             width,
             crop: None,
+            start: CaptureStart::Immediate,
             _pins: pins,
             _dcmi: dcmi,
             _dma: dma,
@@ -427,13 +431,27 @@ impl DmaRing for DcmiRing {
             w.set_err_ie(true);
         });
         dcmi.cr().modify(|w| w.set_enable(true));
-        // Capture begins at the next frame start (VSYNC).
-        dcmi.cr().modify(|w| w.set_capture(true));
+        // Capture begins at the next frame start (VSYNC): now, or from the
+        // sync line's interrupt (`sync.rs`).
+        if crate::sync::arm(self.start) {
+            dcmi.cr().modify(|w| w.set_capture(true));
+        }
         0
     }
 
     fn stop(&mut self) {
+        crate::sync::disarm();
         self.halt();
+    }
+
+    fn set_start(&mut self, start: CaptureStart) -> Result<(), SyncFault> {
+        crate::sync::check(start)?;
+        self.start = start;
+        Ok(())
+    }
+
+    fn began(&self) -> CaptureBegin {
+        crate::sync::began()
     }
 
     fn half_events(&self) -> u32 {

@@ -30,6 +30,7 @@ mod dcmi;
 mod fault;
 mod health;
 mod storage;
+mod sync;
 mod usb_link;
 mod watchdog;
 
@@ -55,6 +56,8 @@ bind_interrupts!(struct Irqs {
     OTG_FS => usb::InterruptHandler<peripherals::USB_OTG_FS>;
     DCMI => dcmi::DcmiInterrupt;
     DMA1_STREAM0 => dcmi::DmaInterrupt;
+    EXTI9_5 => sync::LeaderInterrupt;
+    EXTI15_10 => sync::FollowerInterrupt;
 });
 
 defmt::timestamp!("{=u64:us}", Instant::now().as_micros());
@@ -188,6 +191,9 @@ async fn device_task(memory: Memory) {
         p.PC12, p.PD6, p.PD2, p.PF11, p.PG15,
     );
     let ring = dcmi::DcmiRing::new(p.DCMI, p.DMA1_CH0, pins, &mut axi.ring, DATA_WIDTH);
+    // PF13, the rig's sync line (`sync.rs`); taken so nothing else uses it.
+    let _sync_pin = p.PF13;
+    sync::init();
     let (device_memory, run_words, run_pixels) = dtcm.split();
     let camera = DcmiSource::new(ring, DATA_WIDTH, run_words, run_pixels);
 
