@@ -649,3 +649,83 @@ fn a_board_that_skips_a_frame_is_aligned_by_number_not_arrival() {
     );
     assert_eq!(merger.counts[2].frames_missing, 1);
 }
+
+/// The same from the command line alone: `simulate-device --camera sim:4
+/// --boards 3 --start-delays 0,3` puts three boards on one simulated camera
+/// with a sync line and prints their ports; `rig capture` on a rig without
+/// `[sync]` finds the merge misaligned, with `[sync]` bit-exact.
+#[test]
+fn simulated_boards_of_one_camera_from_the_command_line() {
+    use std::io::BufRead as _;
+    let dir = common::scratch("rig", "simulate-boards");
+    let config = dir.join("wfs.toml");
+    std::fs::write(
+        &config,
+        "[camera]\nwidth = 48\nheight = 48\nbit_depth = 12\n\
+         [subapertures.grid]\nx = 0\ny = 0\ncolumns = 3\nrows = 3\nwidth = 16\nheight = 16\n\
+         [selection]\npixels = 6\n",
+    )
+    .unwrap();
+    let rig_file = dir.join("rig.toml");
+    let (ok, text) = run(&[
+        "rig",
+        "plan",
+        "--config",
+        config.to_str().unwrap(),
+        "--boards",
+        "3",
+        "--out",
+        rig_file.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    let synced_file = dir.join("rig-sync.toml");
+    let plain = std::fs::read_to_string(&rig_file).unwrap();
+    std::fs::write(
+        &synced_file,
+        plain.replace("# [sync]\n# leader", "[sync]\nleader"),
+    )
+    .unwrap();
+    let (ok, text) = run(&["simulate-device", "--boards", "2"]);
+    assert!(!ok && text.contains("--camera"), "{text}");
+    let mut child = common::brightpix()
+        .args([
+            "simulate-device",
+            "--camera",
+            "sim:4",
+            "--boards",
+            "3",
+            "--start-delays",
+            "0,3",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut lines = std::io::BufReader::new(child.stdout.take().unwrap()).lines();
+    let ports: Vec<String> = (0..3).map(|_| lines.next().unwrap().unwrap()).collect();
+    let ports = ports.join(",");
+    let capture = |rig: &std::path::Path| {
+        run(&[
+            "rig",
+            "capture",
+            "--rig",
+            rig.to_str().unwrap(),
+            "--ports",
+            &ports,
+            "--count",
+            "20",
+            "--verify",
+            "--seed",
+            "4",
+        ])
+    };
+    let (skewed_ok, skewed) = capture(&rig_file);
+    let (synced_ok, synced) = capture(&synced_file);
+    let _ = child.kill();
+    let _ = child.wait();
+    assert!(
+        !skewed_ok && skewed.contains("began on different camera frames"),
+        "{skewed}"
+    );
+    assert!(synced_ok && synced.contains(": 0 mismatches"), "{synced}");
+}

@@ -17,6 +17,7 @@ mod rig;
 mod rig_capture;
 mod rig_demo;
 mod simulate_device;
+mod simulate_rig;
 mod soak;
 mod status;
 mod stream;

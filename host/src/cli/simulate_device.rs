@@ -32,14 +32,16 @@ pub enum CpuArg {
 #[derive(Args)]
 #[command(
     about = "Run the firmware as a device on this machine and print its serial port, until Ctrl-C",
-    after_help = "Examples:\n  brightpix simulate-device                 # the firmware's device loop in-process, on /dev/pts/N\n  brightpix simulate-device --qemu          # the real firmware ELF in qemu-system-arm (mps2-an386)\n  brightpix simulate-device --qemu --pixels-fifo   # pixels also through a FIFO (much faster than QEMU's UART)\n  brightpix simulate-device --qemu --cpu m7 # the Cortex-M7 build in mps2-an500\n  brightpix simulate-device --qemu --icount 6   # instructions counted: for `brightpix bench --port`\n  brightpix simulate-device --camera sim:7  # its own camera: simulated Shack-Hartmann frames, seed 7\n  brightpix simulate-device --qemu --camera sim --camera-fps 5\n  brightpix simulate-device --link unix --socket /tmp/bp.sock\n\n\
+    after_help = "Examples:\n  brightpix simulate-device                 # the firmware's device loop in-process, on /dev/pts/N\n  brightpix simulate-device --qemu          # the real firmware ELF in qemu-system-arm (mps2-an386)\n  brightpix simulate-device --qemu --pixels-fifo   # pixels also through a FIFO (much faster than QEMU's UART)\n  brightpix simulate-device --qemu --cpu m7 # the Cortex-M7 build in mps2-an500\n  brightpix simulate-device --qemu --icount 6   # instructions counted: for `brightpix bench --port`\n  brightpix simulate-device --camera sim:7  # its own camera: simulated Shack-Hartmann frames, seed 7\n  brightpix simulate-device --qemu --camera sim --camera-fps 5\n  brightpix simulate-device --link unix --socket /tmp/bp.sock\n  \
+brightpix simulate-device --camera sim:7 --boards 3 --start-delays 0,3  # a rig's boards on one camera\n\n\
 The first line on stdout is the port (/dev/pts/N or unix:PATH). Then, in another terminal:\n  brightpix status --port /dev/pts/N\n  brightpix stream --port /dev/pts/N --config examples/canary.toml --frames f.npy --verify\n\
 or from Python: serial.Serial('/dev/pts/N', timeout=1) and the wire format of shared/PROTOCOL.md.\n\
 With --camera the device has a camera of its own (for `capture`): the paper's CANARY NGS spots,\n\
 16x16 pixels each, tiled over the configured camera, made on the host from SEED and written into\n\
 the firmware's camera ring at --camera-fps (the device's frame clock; a device that falls behind\n\
-drops frames). Each capture starts at frame 0, so `capture --verify --seed SEED` checks it:\n\
-  brightpix capture --port /dev/pts/N --config examples/canary.toml --count 100 --verify --seed 7\n\
+drops frames). Each capture starts at frame 0, so `capture --verify --seed SEED` checks it\n\
+(with --boards, the boards share one free-running camera and sync line instead):\n  \
+brightpix capture --port /dev/pts/N --config examples/canary.toml --count 100 --verify --seed 7\n\
 Without --camera, Capture is answered NoCamera (pixels come from the host: `stream`).\n\
 The in-process device has the QEMU board's limits (6400 sub-apertures, maps of 256x256 pixels).\n\
 --qemu needs qemu-system-arm; the ELF is built (cd firmware && cargo build --release\n\
@@ -80,9 +82,49 @@ pub struct SimulateDeviceArgs {
     /// `brightpix bench --port` gets instruction counts from the board's bench mode.
     #[arg(long, value_name = "SHIFT", requires = "qemu", value_parser = clap::value_parser!(u32).range(0..=10))]
     icount: Option<u32>,
+    /// With --camera: N boards on that one camera (a rig): one timeline of frames, so camera frame
+    /// k is the same pixels on every board and each begins on the frame after its own start, and
+    /// one sync line (`rig capture` with [sync] in rig.toml). Prints the N ports, one a line.
+    #[arg(long, value_name = "N", requires = "camera", value_parser = super::at_least_one,
+          conflicts_with_all = ["pixels_fifo", "socket", "log", "icount"])]
+    boards: Option<usize>,
+    /// With --boards: board K's start comes D_K frame periods late (USB latency, as a test knob:
+    /// without the sync line `rig capture --verify` then finds the merge misaligned).
+    #[arg(
+        long,
+        value_name = "D0,D1,..",
+        value_delimiter = ',',
+        requires = "boards"
+    )]
+    start_delays: Vec<u32>,
 }
 
 pub fn run(args: SimulateDeviceArgs) -> Result<()> {
+    if let (Some(boards), Some(spec)) = (args.boards, args.camera) {
+        if args.link != LinkArg::Pty {
+            bail!("--boards: each board is on a pseudo-terminal (--link pty)");
+        }
+        if args.start_delays.len() > boards {
+            bail!(
+                "--start-delays: {} delays for {boards} boards",
+                args.start_delays.len()
+            );
+        }
+        let cpu = match args.cpu {
+            CpuArg::M4 => QemuCpu::M4,
+            CpuArg::M7 => QemuCpu::M7,
+        };
+        let board = super::simulate_rig::Boards {
+            count: boards,
+            spec,
+            fps: args
+                .camera_fps
+                .unwrap_or(if args.qemu { QEMU_FPS } else { IN_PROCESS_FPS }),
+            delays: args.start_delays.clone(),
+            qemu: args.qemu.then_some((cpu, args.elf.clone())),
+        };
+        return super::simulate_rig::run(board);
+    }
     let dir = temp_dir("brightpix-sim")?;
     let link = match args.link {
         LinkArg::Pty => SimLinkKind::Pty,
