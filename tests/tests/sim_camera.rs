@@ -88,6 +88,37 @@ fn capture_verify_in_process() {
         format!("{err:#}").contains("differ from the reference"),
         "{err:#}"
     );
+    own_camera_begins_unnumbered_and_has_no_sync_line(device.port());
+}
+
+/// A device's camera of its own (not shared by a rig's boards): its
+/// captures say they began without a sync edge on a frame it does not
+/// number, and it refuses the sync line (PROTOCOL.md §9).
+fn own_camera_begins_unnumbered_and_has_no_sync_line(port: &str) {
+    use brightpix::link::{CaptureBegan, LinkError};
+    use brightpix_protocol::wire::{CaptureStart, DeviceError, SyncFault};
+    let mut client = Client::open(port).unwrap();
+    client.start_capture(2, CaptureStart::Immediate).unwrap();
+    let frames = client
+        .collect_capture(&mut |_| {}, &mut |_| {})
+        .unwrap_or_else(|e| panic!("{}", e.error));
+    assert_eq!(frames.len(), 2);
+    assert_eq!(
+        client.capture_began(),
+        Some(CaptureBegan {
+            synced: false,
+            camera_frame: None
+        })
+    );
+    for start in [CaptureStart::OnSync, CaptureStart::DriveSync] {
+        match client.start_capture(1, start) {
+            Err(LinkError::Device {
+                error: DeviceError::Sync(SyncFault::NoSyncLine),
+                ..
+            }) => {}
+            other => panic!("{start:?}: {other:?}"),
+        }
+    }
 }
 
 #[test]
@@ -244,4 +275,5 @@ fn capture_verify_in_qemu() {
             device.decoded_log().unwrap_or_default()
         )
     });
+    own_camera_begins_unnumbered_and_has_no_sync_line(device.port());
 }

@@ -533,7 +533,8 @@ impl QemuCapture<'_> {
         let _ = std::fs::remove_file(&armed_file);
     }
 
-    /// The header (`SYNCED CAMERA_FRAME`, u32 LE each), then frames
+    /// The header (`FLAGS CAMERA_FRAME`, u32 LE each; FLAGS bit 0 synced,
+    /// bit 1 the camera frame known), then frames
     /// `first ..` into `fifo` for as long as the board reads.
     fn write_frames(
         &self,
@@ -560,7 +561,8 @@ impl QemuCapture<'_> {
             return;
         }
         let mut header = Vec::with_capacity(8);
-        header.extend(u32::from(began.synced).to_le_bytes());
+        let flags = u32::from(began.synced) | u32::from(began.camera_frame.is_some()) << 1;
+        header.extend(flags.to_le_bytes());
         header.extend(began.camera_frame.unwrap_or(first as u32).to_le_bytes());
         if file.write_all(&header).is_err() {
             return;

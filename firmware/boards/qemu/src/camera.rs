@@ -20,9 +20,10 @@
 //!    capture armed (the device acknowledges `Capture` only then);
 //! 3. when the capture begins (the next frame start of the host's camera
 //!    timeline, or the first after the sync edge), the host creates the
-//!    FIFO `DIR/camera-ID.fifo` and writes into it an 8-byte header, `SYNCED
-//!    CAMERA_FRAME` (u32 little-endian each: 1 if the capture began on a
-//!    sync edge; the camera's number of its first frame), then frames of
+//!    FIFO `DIR/camera-ID.fifo` and writes into it an 8-byte header, `FLAGS
+//!    CAMERA_FRAME` (u32 little-endian each; FLAGS bit 0: the capture began
+//!    on a sync edge, bit 1: CAMERA_FRAME, the camera's number of its first
+//!    frame, is known: a camera shared by a rig's boards), then frames of
 //!    that geometry from that one on, pixels as 16-bit little-endian, row
 //!    after row (a frame is `WIDTH * HEIGHT * 2` bytes), for as long as the
 //!    board reads;
@@ -133,8 +134,8 @@ pub async fn feed(dir: String<MAX_PATH>, fps: u32) {
         let word =
             |k: usize| u32::from_le_bytes([header[k], header[k + 1], header[k + 2], header[k + 3]]);
         let began = CaptureBegin {
-            synced: word(0) == 1,
-            camera_frame: Some(word(4)),
+            synced: word(0) & 1 != 0,
+            camera_frame: (word(0) & 2 != 0).then_some(word(4)),
         };
         RING.begin(capture.id, began);
         defmt::info!(
