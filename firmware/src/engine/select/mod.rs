@@ -480,7 +480,7 @@ fn kth_largest_near_ends(values: &[i32], k: usize) -> i32 {
 
 /// The m-th largest (`LARGEST`) or smallest of `values`, `1 <= m <= 8`.
 #[inline(always)]
-fn extreme<const LARGEST: bool>(values: impl Iterator<Item = i32>, m: usize) -> i32 {
+pub(crate) fn extreme<const LARGEST: bool>(values: impl Iterator<Item = i32>, m: usize) -> i32 {
     // best[..filled] sorted from most to least extreme.
     let mut best = [0i32; 8];
     let mut filled = 0usize;

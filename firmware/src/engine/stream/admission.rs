@@ -116,12 +116,18 @@ pub(super) fn attention(window: &OpenWindow, rule: SelectionRule) -> usize {
 /// ([`prepare_raise`]).
 #[inline(always)]
 pub(super) fn update_admission(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) {
-    let calibration = &config.calibration;
-    window.admit = window.admission();
-    let floor = raw_floor(calibration, window.bounds, window.admit).min(max_raw as u32 + 1);
+    admit_at(window, config, max_raw, window.admission());
+    prepare_raise(window, config, max_raw);
+}
+
+/// The window admits `p >= admit` from now on: `admit` and the pre-filter's
+/// raw floor for it, in both forms (see [`update_admission`]).
+#[inline(always)]
+pub(super) fn admit_at(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16, admit: i32) {
+    window.admit = admit;
+    let floor = raw_floor(&config.calibration, window.bounds, admit).min(max_raw as u32 + 1);
     window.floor = floor;
     window.lanes = floor.wrapping_sub(1).wrapping_mul(0x0001_0001);
-    prepare_raise(window, config, max_raw);
 }
 
 /// For `subtract-next`, the row kernel raises admission to just above the

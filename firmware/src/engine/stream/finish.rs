@@ -4,6 +4,7 @@
 //! filter and seed updated, the moments and the sub-aperture's result.
 
 use super::admission::settle_at_hint;
+use super::last_row::PREPARED;
 use super::{Engine, OutputSink};
 use crate::engine::centroid::Moments;
 use crate::engine::select::{self, pack, Cut, Entry, Tiers, WindowRule};
@@ -13,6 +14,9 @@ impl Engine<'_, '_> {
     /// A window's last pixel has arrived: its result, and what it leaves for
     /// the next frame (level filter, seed).
     pub(super) fn finish(&mut self, k: usize, sink: &mut impl OutputSink) {
+        if self.memory.open[k].attention == PREPARED && self.finish_prepared(k, sink) {
+            return;
+        }
         self.finished_in_row = true;
         let memory = &mut self.memory;
         let window = &mut memory.open[k];

@@ -41,6 +41,7 @@ use brightpix_protocol::{Config, ConfigError, MAX_WINDOW_SIDE};
 
 mod admission;
 mod finish;
+mod last_row;
 mod open;
 mod route;
 
@@ -139,6 +140,14 @@ pub struct Engine<'c, 'm> {
     /// first row of the next window to open, or the camera's height (the
     /// frame's end). Kept so that a row tests one field.
     event_row: u16,
+    /// The windows that end in the frame's last row are prepared at the
+    /// start of this row (`last_row`), `event_row` stopping there too:
+    /// the last row, or earlier by as many rows as a push spans, so that
+    /// the push holding the frame's last pixel does not prepare them;
+    /// `u16::MAX`: never (another rule, or pushes of half a frame or more).
+    prepare_row: u16,
+    /// The length of the last push, from which `prepare_row` was set.
+    push_len: usize,
     /// Which instance of `push_with` a push takes (the calibration steps
     /// and the range check, bits as in [`variant`]): decided once per
     /// configuration, so that a push is one indexed jump.
@@ -222,6 +231,8 @@ impl<'c, 'm> Engine<'c, 'm> {
             column: 0,
             next_to_open: 0,
             event_row: 0,
+            prepare_row: u16::MAX,
+            push_len: 0,
             variant: variant(&config),
             open_len: 0,
             // Not the open windows' count: `start_frame` lists the free
@@ -322,6 +333,9 @@ impl<'c, 'm> Engine<'c, 'm> {
     /// is whole in the chunk from its first pixel on is not copied to the
     /// row history: a window rescanned reads its rows in the chunk.
     pub fn push(&mut self, pixels: &[u16], sink: &mut impl OutputSink) -> Result<(), FrameError> {
+        if pixels.len() != self.push_len {
+            self.set_prepare_row(pixels.len());
+        }
         macro_rules! with {
             ($b:literal, $g:literal, $t:literal, $c:literal) => {
                 self.push_with::<With<$b, $g, $t>, $c>(pixels, sink)
@@ -503,7 +517,13 @@ impl<'c, 'm> Engine<'c, 'm> {
             self.frames = self.frames.wrapping_add(1);
             sink.frame_complete(self.frames);
             self.start_frame();
-        } else if self.opens_windows_in_row() {
+            return;
+        }
+        if self.row == self.prepare_row {
+            self.prepare_last_row();
+            self.update_event_row();
+        }
+        if self.opens_windows_in_row() {
             self.open_windows_of_row();
         } else if layout_changed {
             self.update_layout();

@@ -19,14 +19,18 @@ impl Engine<'_, '_> {
             .is_some_and(|&index| windows[index as usize].y == self.row)
     }
     /// `event_row` after `next_to_open` changed: the next window's first
-    /// row, or the frame's end.
+    /// row, or the frame's end; or `prepare_row`, if it is earlier.
     pub(super) fn update_event_row(&mut self) {
         let windows = self.config.windows;
-        self.event_row = self.memory.order[..windows.len()]
+        let height = self.config.camera.height;
+        let next = self.memory.order[..windows.len()]
             .get(self.next_to_open)
-            .map_or(self.config.camera.height, |&index| {
-                windows[index as usize].y
-            });
+            .map_or(height, |&index| windows[index as usize].y);
+        self.event_row = if self.row < self.prepare_row {
+            next.min(self.prepare_row)
+        } else {
+            next
+        };
     }
 
     /// Opens the windows whose first row is the current row.
