@@ -291,6 +291,7 @@ pub fn device_loop(data: &[u8]) {
                             CaptureStart::OnSync,
                             CaptureStart::DriveSync,
                         ][usize::from(b.u8() % 3)],
+                        edge_rows: b.u8() % 2 == 0,
                     },
                     4 => HostMessage::StopCapture,
                     5 => HostMessage::ConfigCommit {

@@ -247,6 +247,7 @@ fn host_messages(payload: &[u8]) -> Vec<(&'static str, HostMessage<'_>)> {
             HostMessage::Capture {
                 frames: 0,
                 start: CaptureStart::Immediate,
+                edge_rows: false,
             },
         ),
         (
@@ -254,13 +255,15 @@ fn host_messages(payload: &[u8]) -> Vec<(&'static str, HostMessage<'_>)> {
             HostMessage::Capture {
                 frames: 1000,
                 start: CaptureStart::OnSync,
+                edge_rows: false,
             },
         ),
         (
-            "capture 1000 frames, raising the sync line after a frame start (the leader)",
+            "capture 1000 frames, raising the sync line after a frame start (the leader), with every frame's edge rows' checksums",
             HostMessage::Capture {
                 frames: 1000,
                 start: CaptureStart::DriveSync,
+                edge_rows: true,
             },
         ),
         ("", HostMessage::StopCapture),
@@ -502,6 +505,14 @@ fn device_messages() -> Vec<(&'static str, DeviceMessage<'static>)> {
         DeviceMessage::CaptureBegan {
             synced: true,
             camera_frame: Some(1234),
+        },
+    ));
+    all.push((
+        "frame 3's first and last rows' checksums (the alignment self-check)",
+        DeviceMessage::EdgeRows {
+            frame: 3,
+            first: 0x1234_5678,
+            last: 0x9abc_def0,
         },
     ));
     all.push((
@@ -928,6 +939,7 @@ fn every_vector_decodes_to_its_message() {
         "Slopes",
         "FrameDone",
         "CaptureBegan",
+        "EdgeRows",
         "BenchReport",
     ] {
         assert!(

@@ -68,6 +68,9 @@ impl HostSide for Link {
                         synced,
                         camera_frame,
                     } => Reply::Began(synced, camera_frame),
+                    DeviceMessage::EdgeRows { frame, first, last } => {
+                        Reply::EdgeRows(frame, first, last)
+                    }
                 });
             }
         }
@@ -83,6 +86,7 @@ enum Reply {
     Status(Status),
     Slopes(u32, Vec<SlopeEntry>),
     Began(bool, Option<u32>),
+    EdgeRows(u32, u32, u32),
     FrameDone(u32, u32),
 }
 
@@ -192,6 +196,7 @@ fn capture_session(
     link.send(&HostMessage::Capture {
         frames: capture,
         start: brightpix_protocol::wire::CaptureStart::Immediate,
+        edge_rows: false,
     });
 
     let mut stall = stall;

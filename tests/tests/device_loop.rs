@@ -17,11 +17,11 @@ use brightpix_firmware::device::{
 use brightpix_firmware::engine::SubapertureResult;
 use brightpix_protocol::wire::tables::write_table;
 use brightpix_protocol::wire::{
-    decode, encode, Ack, CapacityKind, CaptureStart, ConfigFault, ConfigHeader, DeviceError,
-    DeviceMessage, FrameFault, FrameReader, Hello, HostMessage, PixelRowsPlan, PixelSourceKind,
-    Received, ResetReason, SlopeEntry, Status, SyncFault, Table, TablePosition, UploadPlan, CRC32,
-    MAX_CHUNK_BYTES, MAX_FRAME_LEN, MAX_PIXEL_BYTES, PROTOCOL_VERSION, SCHEMA_HASH,
-    SLOPES_PER_MESSAGE,
+    decode, edge_row_checksum, edge_row_update, encode, Ack, CapacityKind, CaptureStart,
+    ConfigFault, ConfigHeader, DeviceError, DeviceMessage, FrameFault, FrameReader, Hello,
+    HostMessage, PixelRowsPlan, PixelSourceKind, Received, ResetReason, SlopeEntry, Status,
+    SyncFault, Table, TablePosition, UploadPlan, CRC32, EDGE_ROW_SEED, MAX_CHUNK_BYTES,
+    MAX_FRAME_LEN, MAX_PIXEL_BYTES, PROTOCOL_VERSION, SCHEMA_HASH, SLOPES_PER_MESSAGE,
 };
 use brightpix_protocol::{
     Camera, Config, ConfigError, Crop, LevelFilter, MemoryKind, RegularGrid, SelectionRule,
@@ -80,6 +80,11 @@ enum Reply {
         synced: bool,
         camera_frame: Option<u32>,
     },
+    EdgeRows {
+        frame: u32,
+        first: u32,
+        last: u32,
+    },
 }
 
 impl From<DeviceMessage<'_>> for Reply {
@@ -109,6 +114,9 @@ impl From<DeviceMessage<'_>> for Reply {
                 synced,
                 camera_frame,
             },
+            DeviceMessage::EdgeRows { frame, first, last } => {
+                Reply::EdgeRows { frame, first, last }
+            }
         }
     }
 }
@@ -1106,6 +1114,7 @@ fn unconfigured_device_refuses_pixels() {
     host.send(&HostMessage::Capture {
         frames: 1,
         start: CaptureStart::Immediate,
+        edge_rows: false,
     });
     run(&mut device);
     let replies = host.replies();
@@ -1282,6 +1291,7 @@ fn capture_from_a_camera_streams_slopes() {
     host.send(&HostMessage::Capture {
         frames: 3,
         start: CaptureStart::Immediate,
+        edge_rows: true,
     });
     host.send(&HostMessage::PixelRows {
         frame: 0,
@@ -1330,6 +1340,28 @@ fn capture_from_a_camera_streams_slopes() {
         .position(|r| *r == Reply::Ack(Ack::CaptureStarted { frames: 3 }))
         .unwrap();
     assert!(ack < began[0] && began[0] < first_result, "{replies:?}");
+    // Asked for: each frame's first and last rows' checksums, just before
+    // its FrameDone.
+    let width = CAMERA.width as usize;
+    for (k, frame) in frames[..3].iter().enumerate() {
+        let row = |r: usize| {
+            edge_row_checksum(edge_row_update(
+                EDGE_ROW_SEED,
+                &frame[r * width..(r + 1) * width],
+            ))
+        };
+        let edge = Reply::EdgeRows {
+            frame: k as u32,
+            first: row(0),
+            last: row(CAMERA.height as usize - 1),
+        };
+        let at = replies.iter().position(|r| *r == edge);
+        let done = replies
+            .iter()
+            .position(|r| matches!(r, Reply::FrameDone { frame, .. } if *frame == k as u32));
+        assert!(at.is_some() && at < done, "frame {k}: {replies:?}");
+    }
+    assert_ne!(frames[0][..width], frames[1][..width]);
 }
 
 /// On the sync line: refused by a camera without one; with one, the
@@ -1346,7 +1378,11 @@ fn a_capture_on_the_sync_line_is_acknowledged_once_armed() {
         let mut device = Device::new(link, camera, storage.buffers(), "cam");
         host.hello();
         host.upload(a.view(), 1, MAX_CHUNK_BYTES);
-        host.send(&HostMessage::Capture { frames: 2, start });
+        host.send(&HostMessage::Capture {
+            frames: 2,
+            start,
+            edge_rows: false,
+        });
         run(&mut device);
         let replies = host.replies();
         assert_eq!(
@@ -1361,7 +1397,11 @@ fn a_capture_on_the_sync_line_is_acknowledged_once_armed() {
         let mut device = Device::new(link, camera, storage.buffers(), "cam");
         host.hello();
         host.upload(a.view(), 1, MAX_CHUNK_BYTES);
-        host.send(&HostMessage::Capture { frames: 2, start });
+        host.send(&HostMessage::Capture {
+            frames: 2,
+            start,
+            edge_rows: false,
+        });
         host.link.borrow_mut().closed = false;
         run(&mut device);
         let replies = host.replies();
@@ -1377,6 +1417,8 @@ fn a_capture_on_the_sync_line_is_acknowledged_once_armed() {
             synced: true,
             camera_frame: Some(41)
         }));
+        // Not asked for: no edge rows.
+        assert!(!replies.iter().any(|r| matches!(r, Reply::EdgeRows { .. })));
         for (k, want) in expected.iter().enumerate() {
             expect_verified(&replies, k as u32, want);
         }

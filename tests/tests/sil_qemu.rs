@@ -399,7 +399,10 @@ fn rig_of_three_boards_m4_and_m7() {
 /// different camera frames: they say so, and the merge by frame number
 /// differs from the whole-camera reference. On the sync line (board 0
 /// leading) every board begins on the frame after the leader's edge and
-/// the merge equals the reference bit for bit.
+/// the merge equals the reference bit for bit. The bands share a row with
+/// their neighbours (`with_shared_rows`): the boards' checksums of it
+/// (`EdgeRows`, from the firmware) disagree on every skewed frame and
+/// agree on every synced one.
 #[test]
 fn rig_capture_in_qemu_is_aligned_by_the_sync_line_and_not_without() {
     use brightpix::rig::{self, BoardKind, Rig, RigStart, RigStream};
@@ -409,8 +412,13 @@ fn rig_capture_in_qemu_is_aligned_by_the_sync_line_and_not_without() {
     let whole = canary_config();
     let kind = BoardKind::QemuM4;
     let plan = rig::plan(&whole, 3, kind, &kind.cost_model()).unwrap();
-    let rig = Rig::from_plan(whole, kind, None, &plan).unwrap();
+    // Neighbouring bands share a row: the boards checksum it every frame.
+    let rig = Rig::from_plan(whole, kind, None, &plan)
+        .unwrap()
+        .with_shared_rows()
+        .unwrap();
     assert!(rig.boards.iter().all(|b| b.config.crop.is_some()));
+    assert_eq!(rig.shared_rows(), [(0, 1), (1, 2)]);
     let shared = Arc::new(
         SharedCamera::new(CameraSpec { seed: 6 }, 10)
             .with_sync_line()
@@ -463,6 +471,9 @@ fn rig_capture_in_qemu_is_aligned_by_the_sync_line_and_not_without() {
         !v.all_match() && v.mismatch_count > 0,
         "a merge of different camera frames must not verify ({firsts:?})"
     );
+    // The shared rows tell too, without the reference.
+    assert_eq!(skewed.edge_check.frames_checked, 12);
+    assert_eq!(skewed.edge_check.frames_disagreeing, 12);
 
     let synced = capture(RigStart::Sync { leader: 0 });
     for d in &mut devices {
@@ -479,6 +490,8 @@ fn rig_capture_in_qemu_is_aligned_by_the_sync_line_and_not_without() {
         })
         .collect();
     assert!(firsts.iter().all(|&f| f == firsts[0]), "{firsts:?}");
+    assert_eq!(synced.edge_check.frames_checked, 12);
+    assert_eq!(synced.edge_check.frames_disagreeing, 0);
     let v = synced.verifier.as_ref().unwrap();
     assert_eq!((synced.frames_complete, synced.frames_partial), (12, 0));
     assert!(

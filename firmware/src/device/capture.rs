@@ -3,7 +3,8 @@
 //! and `StopCapture` (PROTOCOL.md §9).
 
 use brightpix_protocol::wire::{
-    Ack, CaptureStart, DeviceError, DeviceMessage, FrameFault, MessageKind, PixelSourceKind,
+    edge_row_checksum, edge_row_update, Ack, CaptureStart, DeviceError, DeviceMessage, FrameFault,
+    MessageKind, PixelSourceKind, EDGE_ROW_SEED,
 };
 use embedded_io_async::{Read, Write};
 
@@ -20,6 +21,39 @@ pub(super) struct Capture {
     pub done: u32,
     /// `Ack(CaptureStarted)` is still due: sent once the source is armed.
     pub unacknowledged: bool,
+    /// The frame's first and last rows' checksum states
+    /// (`Capture.edge_rows`), or `None` when not asked.
+    pub edges: Option<[u64; 2]>,
+}
+
+impl Capture {
+    /// A new frame begins: its edge rows' checksums start afresh.
+    pub fn frame_begins(&mut self) {
+        if let Some(edges) = &mut self.edges {
+            *edges = [EDGE_ROW_SEED; 2];
+        }
+    }
+
+    /// `pixels` of camera row `row` of a frame of `height` rows.
+    pub fn row_pixels(&mut self, row: u16, height: u16, pixels: &[u16]) {
+        if let Some(edges) = &mut self.edges {
+            if row == 0 {
+                edges[0] = edge_row_update(edges[0], pixels);
+            }
+            if row + 1 == height {
+                edges[1] = edge_row_update(edges[1], pixels);
+            }
+        }
+    }
+
+    /// The frame's `EdgeRows` message, if asked.
+    pub fn edge_rows(&self, frame: u32) -> Option<DeviceMessage<'static>> {
+        self.edges.map(|[first, last]| DeviceMessage::EdgeRows {
+            frame,
+            first: edge_row_checksum(first),
+            last: edge_row_checksum(last),
+        })
+    }
 }
 
 impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
@@ -29,6 +63,7 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
         &mut self,
         frames: u32,
         start: CaptureStart,
+        edge_rows: bool,
         source: &mut C,
         engine: &mut Option<Engine<'_, '_>>,
     ) -> Result<Option<Ack>, DeviceError> {
@@ -53,6 +88,7 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
             frames,
             done: 0,
             unacknowledged: !armed,
+            edges: edge_rows.then_some([EDGE_ROW_SEED; 2]),
         });
         log_info!(
             "device: capture of {=u32} frames started ({})",

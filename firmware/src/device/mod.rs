@@ -640,8 +640,12 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
                 }
                 return Ok(Next::Continue);
             }
-            HostMessage::Capture { frames, start } => {
-                match self.start_capture(frames, start, source, engine) {
+            HostMessage::Capture {
+                frames,
+                start,
+                edge_rows,
+            } => {
+                match self.start_capture(frames, start, edge_rows, source, engine) {
                     Ok(Some(ack)) => Ok(ack),
                     // Acknowledged once armed.
                     Ok(None) => return Ok(Next::Continue),

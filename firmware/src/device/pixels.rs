@@ -63,6 +63,9 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
                     next: 0,
                     sent: 0,
                 });
+                if let Some(capture) = &mut self.capture {
+                    capture.frame_begins();
+                }
             }
             _ => {
                 if self.skipping == Some(frame) {
@@ -110,8 +113,11 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
         let width = camera.width as usize;
         let mut rest = pixels;
         while !rest.is_empty() {
-            let (_, column) = engine.position();
+            let (row, column) = engine.position();
             let take = rest.len().min(width - column as usize);
+            if let Some(capture) = &mut self.capture {
+                capture.row_pixels(row, camera.height, &rest[..take]);
+            }
             let mut sink = QueueSink {
                 results: self.results,
                 queued: &mut self.queued,
@@ -147,6 +153,9 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
                 self.counters.frames_processed += 1;
                 self.fold_engine(engine);
                 self.log_progress();
+                if let Some(edges) = self.capture.as_ref().and_then(|c| c.edge_rows(frame)) {
+                    self.send(&edges).await?;
+                }
                 self.send(&DeviceMessage::FrameDone { frame, count: sent })
                     .await?;
                 if let Some(capture) = &mut self.capture {

@@ -112,6 +112,7 @@ mod tests {
             frame: 0,
             slopes: entries,
             done_count: Some(2),
+            edge_rows: None,
         };
         let mut count = InvalidFrames::default();
         count.outcome(&FrameOutcome::Done(slopes(vec![entry(0, false)])), 2);

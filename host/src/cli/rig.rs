@@ -37,7 +37,9 @@ that rectangle; results are merged by frame number into the whole camera's sub-a
 `rig stream` numbers the frames it sends, so they agree on every board. `rig capture` starts the\n\
 boards on one camera frame only with a sync line wired to every board ([sync] leader = \"NAME\" in\n\
 rig.toml; STM32H743: PF13): followers are armed first, then the leader raises the line after a\n\
-frame start. Without one it warns: boards may begin frames apart."
+frame start. Without one it warns: boards may begin frames apart. With `rig plan --shared-rows`\n\
+neighbouring bands share a camera row, and `rig capture` refuses a capture in which their\n\
+checksums of it disagree (a check without wiring)."
 )]
 pub struct RigArgs {
     #[command(subcommand)]
@@ -86,6 +88,11 @@ struct PlanArgs {
     /// [camera.crop]), which `brightpix configure --config` takes for that board alone.
     #[arg(long, value_name = "DIR")]
     board_configs: Option<PathBuf>,
+    /// Reach each band of rows one row into the band below, so neighbours share a camera row:
+    /// `rig capture` then compares a checksum of it from both boards every frame, an alignment
+    /// self-check that needs no wiring (each board captures one more row; loads as planned).
+    #[arg(long)]
+    shared_rows: bool,
 }
 
 #[derive(Args)]
@@ -205,8 +212,16 @@ fn plan(args: PlanArgs) -> Result<()> {
     let model = model_for(args.board, args.instr_per_px)?;
     let (plan, loads) =
         rig::plan_keeping_up(&whole, args.boards, args.board, &model, args.camera_rate)?;
-    let rig = Rig::from_plan(whole, args.board, args.camera_rate, &plan)
+    let mut rig = Rig::from_plan(whole, args.board, args.camera_rate, &plan)
         .map_err(|e| anyhow::anyhow!("{e}"))?;
+    if args.shared_rows {
+        if plan.cut != rig::Cut::Rows || rig.boards.len() < 2 {
+            bail!("--shared-rows: the plan has no two bands of rows to overlap (it cut column strips, or one board)");
+        }
+        rig = rig
+            .with_shared_rows()
+            .map_err(|e| anyhow::anyhow!("--shared-rows: {e}"))?;
+    }
     println!(
         "rig plan: {} sub-apertures of {} over {} {} boards, cut in {}",
         rig.whole.windows.len(),

@@ -211,8 +211,30 @@ fn print_starts(rig: &Rig, run: &RigRun) {
 
 /// Refuses a sync capture in which a board began without the edge or
 /// boards began on different camera frames; warns of the latter without
-/// the sync line.
+/// the sync line. Refuses any capture in which boards sharing a camera row
+/// disagree on it (`rig plan --shared-rows`).
 pub(super) fn check_alignment(rig: &Rig, run: &RigRun) -> Result<()> {
+    let edges = &run.edge_check;
+    if !edges.pairs.is_empty() {
+        let names: Vec<String> = edges
+            .pairs
+            .iter()
+            .map(|&(a, b)| format!("{}/{}", rig.boards[a].name, rig.boards[b].name))
+            .collect();
+        println!(
+            "  shared rows ({}): {} merged frames checked, {} with boards on different camera frames",
+            names.join(", "),
+            edges.frames_checked,
+            edges.frames_disagreeing
+        );
+        if edges.frames_disagreeing > 0 {
+            bail!(
+                "boards sharing a camera row saw different pixels there in {} merged frames (first: {:?}): they are not on the same camera frame; nothing was written",
+                edges.frames_disagreeing,
+                edges.first_disagreeing
+            );
+        }
+    }
     let sync = matches!(run.start, Some(RigStart::Sync { .. }));
     if sync {
         for (board, r) in rig.boards.iter().zip(&run.boards) {

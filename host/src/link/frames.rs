@@ -24,6 +24,9 @@ pub struct FrameSlopes {
     pub slopes: Vec<SlopeEntry>,
     /// `FrameDone.count`, if the frame completed.
     pub done_count: Option<u32>,
+    /// `EdgeRows` of the frame (first, last row checksums), if the device
+    /// sent them (a capture with `edge_rows`).
+    pub edge_rows: Option<(u32, u32)>,
 }
 
 impl FrameSlopes {
@@ -218,6 +221,7 @@ impl Client {
                 frame,
                 slopes,
                 done_count: None,
+                edge_rows: None,
             })
             .collect()
     }
@@ -382,11 +386,27 @@ impl Client {
     /// for its acknowledgement: the capture is armed (on the sync line: it
     /// waits for the edge). Then [`Client::collect_capture`].
     pub fn start_capture(&mut self, frames: u32, start: CaptureStart) -> Result<(), LinkError> {
+        self.start_capture_with(frames, start, false)
+    }
+
+    /// [`Client::start_capture`], with every frame's `EdgeRows` if
+    /// `edge_rows` ([`FrameSlopes::edge_rows`]).
+    pub fn start_capture_with(
+        &mut self,
+        frames: u32,
+        start: CaptureStart,
+        edge_rows: bool,
+    ) -> Result<(), LinkError> {
         if frames == 0 {
             return Err(LinkError::Usage("capture needs at least one frame".into()));
         }
         self.capture_began = None;
-        match self.request(&HostMessage::Capture { frames, start }) {
+        self.edge_rows.clear();
+        match self.request(&HostMessage::Capture {
+            frames,
+            start,
+            edge_rows,
+        }) {
             Ok(Reply::Ack(Ack::CaptureStarted { .. })) => Ok(()),
             Ok(other) => Err(unexpected("Capture", &other)),
             Err(e @ LinkError::Device { .. }) => Err(e),

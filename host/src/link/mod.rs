@@ -127,6 +127,8 @@ pub struct Client {
     camera: Option<Camera>,
     /// How the last capture began (`CaptureBegan`), once it did.
     capture_began: Option<frames::CaptureBegan>,
+    /// `EdgeRows` of frames not finished yet.
+    edge_rows: BTreeMap<u32, (u32, u32)>,
     subapertures: usize,
     upload_counter: u32,
     /// This client's session id.
@@ -218,6 +220,7 @@ impl Client {
             damaged_frames: 0,
             stale_outcomes: 0,
             capture_began: None,
+            edge_rows: BTreeMap::new(),
             camera: None,
             subapertures: 0,
             upload_counter: 0,

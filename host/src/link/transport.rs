@@ -31,6 +31,11 @@ enum Incoming {
         fault: FrameFault,
     },
     Began(super::frames::CaptureBegan),
+    EdgeRows {
+        frame: u32,
+        first: u32,
+        last: u32,
+    },
     Damaged,
 }
 
@@ -205,6 +210,7 @@ impl Client {
                     frame,
                     slopes,
                     done_count: Some(count),
+                    edge_rows: self.edge_rows.remove(&frame),
                 }));
             }
             Incoming::FrameError { frame, fault } => {
@@ -215,11 +221,15 @@ impl Client {
                         frame,
                         slopes,
                         done_count: None,
+                        edge_rows: self.edge_rows.remove(&frame),
                     },
                     fault,
                 });
             }
             Incoming::Began(began) => self.capture_began = Some(began),
+            Incoming::EdgeRows { frame, first, last } => {
+                self.edge_rows.insert(frame, (first, last));
+            }
             Incoming::Damaged => self.damaged_frames += 1,
         }
     }
@@ -255,6 +265,9 @@ fn decode_incoming(bytes: &mut [u8]) -> Incoming {
             synced,
             camera_frame,
         }),
+        Ok(DeviceMessage::EdgeRows { frame, first, last }) => {
+            Incoming::EdgeRows { frame, first, last }
+        }
         Err(_) => {
             let mut copy = copy;
             match hello_prefix(&mut copy) {

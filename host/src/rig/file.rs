@@ -114,6 +114,55 @@ impl Rig {
         Ok(rig)
     }
 
+    /// Pairs of boards `(above, below)` whose rectangles share one camera
+    /// row, the last of `above` and the first of `below`, over the same
+    /// columns: on the same camera frame both see the same pixels there,
+    /// which `rig capture` checks frame by frame (`EdgeRows`, PROTOCOL.md
+    /// §9) without any wiring.
+    pub fn shared_rows(&self) -> Vec<(usize, usize)> {
+        let mut pairs = Vec::new();
+        for (a, above) in self.boards.iter().enumerate() {
+            for (b, below) in self.boards.iter().enumerate() {
+                let (ra, rb) = (above.rectangle, below.rectangle);
+                if a != b
+                    && (ra.x, ra.width) == (rb.x, rb.width)
+                    && u32::from(ra.y) + u32::from(ra.height) == u32::from(rb.y) + 1
+                {
+                    pairs.push((a, b));
+                }
+            }
+        }
+        pairs
+    }
+
+    /// The rig with each band of rows reaching one row into the band below
+    /// it (same columns), so that neighbours share a camera row
+    /// ([`Rig::shared_rows`]); refused if a board cannot crop its taller
+    /// rectangle.
+    pub fn with_shared_rows(&self) -> Result<Rig, String> {
+        let starts: Vec<(u16, u16, u16)> = self
+            .boards
+            .iter()
+            .map(|b| (b.rectangle.x, b.rectangle.width, b.rectangle.y))
+            .collect();
+        let boards = self
+            .boards
+            .iter()
+            .map(|b| {
+                let mut r = b.rectangle;
+                let end = r.y + r.height;
+                if starts.contains(&(r.x, r.width, end)) {
+                    r.height += 1;
+                }
+                (b.name.clone(), b.port.clone(), r, b.windows.clone())
+            })
+            .collect();
+        let mut rig = Rig::from_parts(self.whole.clone(), self.kind, self.camera_rate_hz, boards)?;
+        rig.config_file = self.config_file.clone();
+        rig.sync = self.sync;
+        Ok(rig)
+    }
+
     /// Declares the sync line, driven by the board named `leader`.
     pub fn set_sync_leader(&mut self, leader: &str) -> Result<(), String> {
         let index = self
@@ -411,6 +460,16 @@ mod tests {
         }
         assert_eq!(back.camera_rate_hz, Some(1000.0));
         assert_eq!(back.sync, None);
+        // Bands sharing a row with the next: none planned, each after
+        // with_shared_rows, which loads back the same.
+        assert!(rig.shared_rows().is_empty());
+        let shared = rig.with_shared_rows().unwrap();
+        assert_eq!(shared.shared_rows(), [(0, 1), (1, 2)]);
+        for (a, b) in rig.boards.iter().zip(&shared.boards) {
+            assert_eq!(a.windows, b.windows);
+        }
+        std::fs::write(&path, shared.to_toml(Path::new("canary.toml"), None)).unwrap();
+        assert_eq!(Rig::load(&path).unwrap().shared_rows(), [(0, 1), (1, 2)]);
         // With a sync line: its leader by name, back as the same board.
         let mut synced = rig.clone();
         synced.set_sync_leader("board-2").unwrap();

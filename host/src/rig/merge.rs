@@ -22,6 +22,13 @@ pub struct MergedFrame {
     pub results: Vec<Option<SlopeEntry>>,
     /// Boards that gave no complete result for this frame.
     pub missing_boards: Vec<usize>,
+    /// Per board, its `EdgeRows` for this frame (first, last row
+    /// checksums), if it sent them.
+    pub edge_rows: Vec<Option<(u32, u32)>>,
+    /// Two boards that share a camera row sent different checksums of it
+    /// for this frame: their parts are of different camera frames
+    /// (`RigStream` sets it).
+    pub edges_disagree: bool,
 }
 
 impl MergedFrame {
@@ -36,6 +43,7 @@ impl MergedFrame {
             frame: self.frame,
             done_count: Some(slopes.len() as u32),
             slopes,
+            edge_rows: None,
         }))
     }
 }
@@ -129,6 +137,10 @@ impl Merger {
     fn merge(&mut self, frame: u32, parts: Vec<Option<FrameOutcome>>) -> MergedFrame {
         let mut results = vec![None; self.subapertures];
         let mut missing_boards = Vec::new();
+        let edge_rows = parts
+            .iter()
+            .map(|p| p.as_ref().and_then(|o| o.slopes().edge_rows))
+            .collect();
         for (board, part) in parts.into_iter().enumerate() {
             let map = &self.local_to_whole[board];
             match part {
@@ -155,6 +167,8 @@ impl Merger {
             frame,
             results,
             missing_boards,
+            edge_rows,
+            edges_disagree: false,
         }
     }
 }
@@ -184,6 +198,7 @@ mod tests {
                 .map(|(local, &whole)| entry(local as u16, (frame * 100) as i32 + whole as i32))
                 .collect(),
             done_count: Some(map.len() as u32),
+            edge_rows: None,
         })
     }
 

@@ -28,5 +28,6 @@ pub use plan::{
     PlanError, DCMI_MAX_PIXEL_CLOCK_HZ, SLOPE_ENTRY_MAX_BYTES, USB_FULL_SPEED_BYTES_PER_S,
 };
 pub use run::{
-    check_configurations, configure, stream, BoardRun, RigRun, RigStart, RigStartError, RigStream,
+    check_configurations, configure, stream, BoardRun, EdgeCheck, RigRun, RigStart, RigStartError,
+    RigStream,
 };

@@ -105,6 +105,45 @@ pub struct RigRun {
     pub elapsed: Duration,
     /// How the capture started the boards (`rig capture`).
     pub start: Option<RigStart>,
+    /// The alignment self-check on rows boards share (`rig capture`).
+    pub edge_check: EdgeCheck,
+}
+
+/// `rig capture`'s alignment self-check without wiring: boards whose
+/// rectangles share a camera row ([`Rig::shared_rows`]) send a checksum of
+/// it every frame (`EdgeRows`), and every merged frame's neighbours must
+/// agree.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct EdgeCheck {
+    /// Pairs of boards sharing a row `(above, below)`.
+    pub pairs: Vec<(usize, usize)>,
+    /// Merged frames in which at least one pair could be compared.
+    pub frames_checked: u64,
+    /// Merged frames in which a pair disagreed.
+    pub frames_disagreeing: u64,
+    /// The first few of them.
+    pub first_disagreeing: Vec<u32>,
+}
+
+impl EdgeCheck {
+    /// Compares `m`'s shared rows; marks it if a pair disagrees.
+    fn check(&mut self, m: &mut MergedFrame) {
+        let mut compared = false;
+        for &(above, below) in &self.pairs {
+            let pair = (m.edge_rows.get(above), m.edge_rows.get(below));
+            if let (Some(Some((_, last))), Some(Some((first, _)))) = pair {
+                compared = true;
+                m.edges_disagree |= last != first;
+            }
+        }
+        self.frames_checked += u64::from(compared);
+        if m.edges_disagree {
+            self.frames_disagreeing += 1;
+            if self.first_disagreeing.len() < 10 {
+                self.first_disagreeing.push(m.frame);
+            }
+        }
+    }
 }
 
 /// How `rig capture` starts its boards (PROTOCOL.md §9).
@@ -160,6 +199,7 @@ pub struct RigStream<'r> {
     start: Option<RigStart>,
     /// The camera frame merged frame 0 is, once known (a capture).
     base: Option<u32>,
+    edge_check: EdgeCheck,
 }
 
 impl<'r> RigStream<'r> {
@@ -182,6 +222,7 @@ impl<'r> RigStream<'r> {
             began: vec![None; rig.boards.len()],
             start: None,
             base: None,
+            edge_check: EdgeCheck::default(),
         }
     }
 
@@ -268,6 +309,8 @@ impl<'r> RigStream<'r> {
             self.merger.expect(k);
         }
         self.start = Some(start);
+        self.edge_check.pairs = self.rig.shared_rows();
+        let edge_rows = !self.edge_check.pairs.is_empty();
         let leader = match start {
             RigStart::Immediate => None,
             RigStart::Sync { leader } => Some(leader),
@@ -301,7 +344,7 @@ impl<'r> RigStream<'r> {
                         let _ = tx.send(Event::Ended(b, Err(not_released())));
                         return;
                     }
-                    if let Err(e) = client.start_capture(count, role) {
+                    if let Err(e) = client.start_capture_with(count, role, edge_rows) {
                         let _ = tx.send(Event::Ended(b, Err(e)));
                         return;
                     }
@@ -429,7 +472,8 @@ impl<'r> RigStream<'r> {
         pixels: &mut dyn FnMut(u32) -> Option<Vec<u16>>,
         on_frame: &mut impl FnMut(&MergedFrame),
     ) {
-        for m in merged {
+        for mut m in merged {
+            self.edge_check.check(&mut m);
             let frame = pixels(m.frame);
             let outcome = m.as_outcome();
             if outcome.is_some() {
@@ -485,6 +529,7 @@ impl<'r> RigStream<'r> {
             verifier: self.verifier,
             elapsed: self.started.elapsed(),
             start: self.start,
+            edge_check: self.edge_check,
         }
     }
 }

@@ -1,10 +1,13 @@
 //! A capture's start (PROTOCOL.md §9): at once, or on a rig's sync line,
-//! and why a device refuses the sync line.
+//! and why a device refuses the sync line; the edge rows' checksum of the
+//! alignment self-check.
 
 use core::fmt;
 
 use postcard_schema::Schema;
 use serde::{Deserialize, Serialize};
+
+use super::fnv1a64;
 
 /// Which camera frame a capture's frame 0 is (PROTOCOL.md §9). Several
 /// boards on one camera number the same camera frame alike only if they
@@ -45,4 +48,23 @@ impl fmt::Display for SyncFault {
             }
         })
     }
+}
+
+/// FNV-1a 64 offset basis: the state of [`edge_row_checksum`] before any
+/// pixel.
+pub const EDGE_ROW_SEED: u64 = 0xcbf2_9ce4_8422_2325;
+
+/// Adds `pixels` (as u16 little-endian) to an edge row's checksum state
+/// (FNV-1a 64 from [`EDGE_ROW_SEED`]).
+pub fn edge_row_update(mut state: u64, pixels: &[u16]) -> u64 {
+    for p in pixels {
+        state = fnv1a64(state, &p.to_le_bytes());
+    }
+    state
+}
+
+/// An edge row's checksum from its state: the FNV-1a 64 of its pixels,
+/// folded to 32 bits (high half XOR low half).
+pub const fn edge_row_checksum(state: u64) -> u32 {
+    (state ^ (state >> 32)) as u32
 }

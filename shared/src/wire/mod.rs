@@ -65,7 +65,7 @@ pub use bench::{
     BenchFault, BenchFigures, BenchLimit, BenchReport, BenchResult, CountUnit, FloorCheck, Spread,
     ALL_WORKLOADS, MAX_WORKLOAD_NAME_LEN,
 };
-pub use capture::{CaptureStart, SyncFault};
+pub use capture::{edge_row_checksum, edge_row_update, CaptureStart, SyncFault, EDGE_ROW_SEED};
 pub use frame::{
     decode, decode_body, encode, hello_in_body, hello_prefix, unstuff, Crc32Digest, FrameReader,
     Received, WireError, CRC32, CRC_LEN,
@@ -91,9 +91,11 @@ pub use tables::{PixelRowsPlan, UploadPlan};
 /// at once, or on a rig's sync line, followed or driven), `CaptureStarted`
 /// sent once the capture is armed, `DeviceMessage::CaptureBegan` (how the
 /// first frame began: on the sync edge or not, its camera frame if the
-/// camera numbers them), `DeviceError::Sync`.
+/// camera numbers them), `DeviceError::Sync`. Version 7: the alignment
+/// self-check without wiring (`Capture.edge_rows`,
+/// `DeviceMessage::EdgeRows`: checksums of a frame's first and last rows).
 /// PROTOCOL.md §12 lists every version.
-pub const PROTOCOL_VERSION: u16 = 6;
+pub const PROTOCOL_VERSION: u16 = 7;
 
 /// Largest postcard encoding of a message that every frame buffer holds.
 pub const MAX_MESSAGE_LEN: usize = 1024;
@@ -221,8 +223,14 @@ pub enum HostMessage<'a> {
     /// Starts the device's own camera for `frames` frames (0: until
     /// `StopCapture`), its first frame as `start` says (PROTOCOL.md §9).
     /// Reply: `Ack(CaptureStarted)` once the capture is armed, or `Error`;
-    /// then [`DeviceMessage::CaptureBegan`] before the first results.
-    Capture { frames: u32, start: CaptureStart },
+    /// then [`DeviceMessage::CaptureBegan`] before the first results. With
+    /// `edge_rows`, every frame's [`DeviceMessage::EdgeRows`] precedes its
+    /// `FrameDone`.
+    Capture {
+        frames: u32,
+        start: CaptureStart,
+        edge_rows: bool,
+    },
     /// Stops the camera. Reply: `Ack(CaptureStopped)`.
     StopCapture,
     /// Measures the engine on the board's own workloads (`workload`: one
@@ -368,6 +376,16 @@ pub enum DeviceMessage<'a> {
     CaptureBegan {
         synced: bool,
         camera_frame: Option<u32>,
+    },
+    /// Checksums of frame `frame`'s first and last camera rows (of the
+    /// configured camera: a board's rectangle), [`edge_row_checksum`] of
+    /// their pixels; sent before its `FrameDone` when the capture asked
+    /// (`Capture.edge_rows`). Two boards whose rectangles share a camera
+    /// row see the same pixels there only on the same camera frame.
+    EdgeRows {
+        frame: u32,
+        first: u32,
+        last: u32,
     },
 }
 

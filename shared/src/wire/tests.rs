@@ -90,6 +90,7 @@ fn host_examples(payload: &[u8]) -> Vec<HostMessage<'_>> {
         HostMessage::Capture {
             frames: u32::MAX,
             start: CaptureStart::DriveSync,
+            edge_rows: true,
         },
         HostMessage::StopCapture,
     ];
@@ -428,9 +429,10 @@ fn encoding_is_as_documented() {
     assert_eq!(
         enc_host(HostMessage::Capture {
             frames: 0,
-            start: CaptureStart::Immediate
+            start: CaptureStart::Immediate,
+            edge_rows: false,
         }),
-        [0x02, 0x08, 0x01, 0x05, 0xaa, 0x88, 0x52, 0xf1, 0x00]
+        [0x02, 0x08, 0x01, 0x01, 0x05, 0xf3, 0xf7, 0xf0, 0xe4, 0x00]
     );
     assert_eq!(
         enc_host(HostMessage::Hello {
@@ -558,6 +560,22 @@ fn corrupted_frames_are_rejected() {
     }
 }
 
+/// The edge rows' checksum is FNV-1a 64 of the pixels as u16 LE, folded.
+#[test]
+fn edge_row_checksum_is_folded_fnv1a() {
+    assert_eq!(EDGE_ROW_SEED, 0xcbf2_9ce4_8422_2325);
+    let state = edge_row_update(EDGE_ROW_SEED, &[0x0201, 0x0403]);
+    assert_eq!(state, fnv1a64(EDGE_ROW_SEED, &[1, 2, 3, 4]));
+    assert_eq!(edge_row_checksum(state), (state ^ (state >> 32)) as u32);
+    // Split anywhere, the same.
+    let split = edge_row_update(edge_row_update(EDGE_ROW_SEED, &[0x0201]), &[0x0403]);
+    assert_eq!(split, state);
+    assert_ne!(
+        edge_row_checksum(edge_row_update(EDGE_ROW_SEED, &[0x0403, 0x0201])),
+        edge_row_checksum(state)
+    );
+}
+
 #[test]
 fn frame_reader_cuts_streams() {
     let messages = [
@@ -565,6 +583,7 @@ fn frame_reader_cuts_streams() {
         HostMessage::Capture {
             frames: 3,
             start: CaptureStart::OnSync,
+            edge_rows: false,
         },
         HostMessage::ConfigAbort,
     ];
@@ -741,7 +760,7 @@ fn schema_hash_is_pinned() {
     );
 }
 
-const PINNED_SCHEMA_HASH: u64 = 0xf4c1_09f4_4e2c_7b2f;
+const PINNED_SCHEMA_HASH: u64 = 0x0089_76a2_63c0_2cbd;
 
 fn hash_of<T: Schema + ?Sized>() -> u64 {
     u64::from_le_bytes(hash_ty_path::<T>(WIRE_CONVENTIONS))
@@ -859,7 +878,7 @@ fn schema_covers_every_message_and_config_type() {
     let DataModelType::Enum(device) = DeviceMessage::SCHEMA.ty else {
         panic!("DeviceMessage is an enum")
     };
-    assert_eq!(device.len(), 8);
+    assert_eq!(device.len(), 9);
     assert_eq!(device[0].name, "HelloReply");
     let DataModelType::Enum(config_errors) = ConfigFault::SCHEMA.ty else {
         panic!()

@@ -286,6 +286,8 @@ def decode_device(body):
         return "BenchReport", decode_bench_report(r)
     if kind == 7:
         return "CaptureBegan", dict(synced=r.bool(), camera_frame=r.option(r.varint))
+    if kind == 8:
+        return "EdgeRows", dict(frame=r.varint(), first=r.varint(), last=r.varint())
     raise ValueError("unknown device message %d" % kind)
 
 
@@ -679,7 +681,7 @@ def check_vectors():
                 fix = health["silicon"]["axi_sram_fix"]
                 health["silicon"] = dict(health["silicon"], axi_sram_fix=ERRATUM_FIXES.index(fix))
             assert fields["health"] == health, (fields["health"], health)
-        if kind in ("BenchReport", "CaptureBegan"):
+        if kind in ("BenchReport", "CaptureBegan", "EdgeRows"):
             assert fields == message[kind], (fields, message)
         count += 1
     print("vectors: %d device messages decoded and the Hello encoded as in "
