@@ -152,12 +152,19 @@ fn a_board_that_drops_a_frame() {
 
 /// Board 2 disappears after frame 10 is merged: its sub-apertures are
 /// invalid from then on, the other boards' results go on, frame by frame.
+///
+/// Each board's thread streams ahead of the merge, so how far board 2 got
+/// before it was unplugged depends on scheduling (on a loaded 2-core
+/// machine it was 46 frames of 60 once): the assertions take its count as
+/// it came, and the run is long enough (300 frames) that it cannot reach
+/// the end first.
 #[test]
 fn a_board_that_disappears() {
+    const FRAMES: u64 = 300;
     let rig = rig_of(3);
     let (devices, mut clients) = devices(&rig);
     rig::configure(&rig, &mut clients).unwrap();
-    let frames = frames(60);
+    let frames = frames(FRAMES as usize);
     let mut devices: Vec<Option<InProcessDevice>> = devices.into_iter().map(Some).collect();
     let mut merged = Vec::new();
     let run = rig::stream(&rig, clients, &frames, 0, false, |m| {
@@ -166,21 +173,26 @@ fn a_board_that_disappears() {
             devices[2] = None; // the board is unplugged
         }
     });
-    assert_eq!(merged.len(), 60);
+    assert_eq!(merged.len() as u64, FRAMES);
     assert!(
         run.boards[2].error.is_some(),
         "board 2 must report why it stopped"
     );
     assert!(run.boards[0].error.is_none() && run.boards[1].error.is_none());
-    let lost = run.boards[2].counts.frames_missing + run.boards[2].counts.frames_dropped;
-    assert!(lost >= 40, "{:?}", run.boards[2].counts);
-    assert_eq!(run.boards[0].counts.frames_done, 60);
+    assert_eq!(run.boards[0].counts.frames_done, FRAMES);
+    let counts = run.boards[2].counts;
+    let lost = counts.frames_missing + counts.frames_dropped;
+    assert!(lost >= 1 && counts.frames_done + lost == FRAMES, "{counts:?}");
     assert_eq!(run.frames_partial, lost);
-    for m in &merged[..=10] {
-        assert!(m.missing_boards.is_empty());
-    }
-    for m in &merged[50..] {
-        assert_eq!(m.missing_boards, [2]);
+    // Every frame up to the unplug is whole; from the first frame board 2
+    // did not deliver, none has its sub-apertures.
+    let first_lost = merged
+        .iter()
+        .position(|m| !m.missing_boards.is_empty())
+        .expect("board 2 lost frames");
+    assert!(first_lost > 10, "frame {first_lost} lost before the unplug");
+    for m in &merged[first_lost..] {
+        assert_eq!(m.missing_boards, [2], "frame {}", m.frame);
     }
     check_present(&rig, &frames, &merged);
 }
