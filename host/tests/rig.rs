@@ -182,7 +182,10 @@ fn a_board_that_disappears() {
     assert_eq!(run.boards[0].counts.frames_done, FRAMES);
     let counts = run.boards[2].counts;
     let lost = counts.frames_missing + counts.frames_dropped;
-    assert!(lost >= 1 && counts.frames_done + lost == FRAMES, "{counts:?}");
+    assert!(
+        lost >= 1 && counts.frames_done + lost == FRAMES,
+        "{counts:?}"
+    );
     assert_eq!(run.frames_partial, lost);
     // Every frame up to the unplug is whole; from the first frame board 2
     // did not deliver, none has its sub-apertures.
