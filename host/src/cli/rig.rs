@@ -316,6 +316,29 @@ fn relative_to(path: &Path, dir: &Path) -> PathBuf {
 
 /// The boards, their parts and predicted loads, and the limits of a board
 /// that sees only its rectangle.
+/// How `rig capture` will start the boards on one camera frame, and check it.
+fn describe_alignment(rig: &Rig) -> String {
+    let start = match rig.sync {
+        Some(sync) => format!(
+            "sync line led by {} (rig capture starts every board on one camera frame)",
+            rig.boards[sync.leader].name
+        ),
+        None => "no sync line ([sync] in rig.toml): rig capture warns that boards may begin frames apart".into(),
+    };
+    let pairs = rig.shared_rows();
+    if pairs.is_empty() {
+        return format!("alignment: {start}");
+    }
+    let names: Vec<String> = pairs
+        .iter()
+        .map(|&(a, b)| format!("{}/{}", rig.boards[a].name, rig.boards[b].name))
+        .collect();
+    format!(
+        "alignment: {start}; shared rows checked every frame: {}",
+        names.join(", ")
+    )
+}
+
 pub(super) fn print_rig(rig: &Rig, loads: Option<&[rig::BoardLoad]>) {
     let model = rig.kind.cost_model();
     let computed;
@@ -342,6 +365,7 @@ pub(super) fn print_rig(rig: &Rig, loads: Option<&[rig::BoardLoad]>) {
             describe_load(load, b)
         );
     }
+    println!("  {}", describe_alignment(rig));
     if let Some(rate) = rig.camera_rate_hz {
         let pixel_rate = rig.whole.camera.pixel_count() as f64 * rate;
         println!(
