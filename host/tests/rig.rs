@@ -215,14 +215,7 @@ fn a_board_with_another_configuration_is_refused_before_any_frame() {
 #[test]
 fn plan_check_and_stream_from_the_command_line() {
     let dir = common::scratch("rig", "cli");
-    let config = dir.join("wfs.toml");
-    std::fs::write(
-        &config,
-        "[camera]\nwidth = 48\nheight = 48\nbit_depth = 12\n\
-         [subapertures.grid]\nx = 0\ny = 0\ncolumns = 3\nrows = 3\nwidth = 16\nheight = 16\n\
-         [selection]\npixels = 6\n",
-    )
-    .unwrap();
+    let config = common::small_wfs_config(&dir);
     let rig_file = dir.join("rig.toml");
     let (ok, text) = run(&[
         "rig",

@@ -30,14 +30,7 @@ use brightpix::sim_device::{
 #[test]
 fn capture_with_three_boards_each_cropping_one_camera() {
     let dir = common::scratch("rig", "capture");
-    let config = dir.join("wfs.toml");
-    std::fs::write(
-        &config,
-        "[camera]\nwidth = 48\nheight = 48\nbit_depth = 12\n\
-         [subapertures.grid]\nx = 0\ny = 0\ncolumns = 3\nrows = 3\nwidth = 16\nheight = 16\n\
-         [selection]\npixels = 6\n",
-    )
-    .unwrap();
+    let config = common::small_wfs_config(&dir);
     let rig_file = dir.join("rig.toml");
     let (ok, text) = run(&[
         "rig",
@@ -189,14 +182,7 @@ fn capture_with_three_boards_each_cropping_one_camera() {
 fn simulated_boards_of_one_camera_from_the_command_line() {
     use std::io::BufRead as _;
     let dir = common::scratch("rig", "simulate-boards");
-    let config = dir.join("wfs.toml");
-    std::fs::write(
-        &config,
-        "[camera]\nwidth = 48\nheight = 48\nbit_depth = 12\n\
-         [subapertures.grid]\nx = 0\ny = 0\ncolumns = 3\nrows = 3\nwidth = 16\nheight = 16\n\
-         [selection]\npixels = 6\n",
-    )
-    .unwrap();
+    let config = common::small_wfs_config(&dir);
     let rig_file = dir.join("rig.toml");
     let (ok, text) = run(&[
         "rig",
@@ -271,14 +257,7 @@ fn simulated_boards_of_one_camera_from_the_command_line() {
 #[test]
 fn shared_rows_catch_boards_on_different_frames_without_a_reference() {
     let dir = common::scratch("rig", "shared-rows");
-    let config = dir.join("wfs.toml");
-    std::fs::write(
-        &config,
-        "[camera]\nwidth = 48\nheight = 48\nbit_depth = 12\n\
-         [subapertures.grid]\nx = 0\ny = 0\ncolumns = 3\nrows = 3\nwidth = 16\nheight = 16\n\
-         [selection]\npixels = 6\n",
-    )
-    .unwrap();
+    let config = common::small_wfs_config(&dir);
     let rig_file = dir.join("rig.toml");
     let (ok, text) = run(&[
         "rig",

@@ -26,3 +26,17 @@ pub fn run(args: &[&str]) -> (bool, String) {
         String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
     (out.status.success(), text)
 }
+
+/// The rig tests' camera: 48x48, 12 bits, 3x3 sub-apertures of 16x16,
+/// N = 6; written as `DIR/wfs.toml`, whose path is returned.
+pub fn small_wfs_config(dir: &std::path::Path) -> PathBuf {
+    let config = dir.join("wfs.toml");
+    std::fs::write(
+        &config,
+        "[camera]\nwidth = 48\nheight = 48\nbit_depth = 12\n\
+         [subapertures.grid]\nx = 0\ny = 0\ncolumns = 3\nrows = 3\nwidth = 16\nheight = 16\n\
+         [selection]\npixels = 6\n",
+    )
+    .unwrap();
+    config
+}
