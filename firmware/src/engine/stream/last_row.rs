@@ -93,23 +93,32 @@ impl Engine<'_, '_> {
         for k in 0..self.open_len {
             let window = &self.memory.open[k];
             if window.last_row == last && window.y < self.row {
+                let rows_left = (last + 1 - self.row) as usize;
                 let window = &mut self.memory.open[k];
-                prepare(window, &self.config, self.max_raw, self.memory.scratch);
+                prepare(
+                    window,
+                    &self.config,
+                    self.max_raw,
+                    self.memory.scratch,
+                    rows_left,
+                );
             }
         }
     }
 }
 
 /// See the module documentation. Leaves the window as it was unless it can
-/// be prepared.
+/// be prepared: among other things, its buffer must have room for every
+/// pixel of its `rows_left` rows still to come besides the block, so that
+/// nothing the window admits from now on can reach the block.
 #[inline(never)]
 fn prepare(
     window: &mut OpenWindow,
     config: &brightpix_protocol::Config<'_>,
     max_raw: u16,
     scratch: &mut [i32],
+    rows_left: usize,
 ) {
-    let width = window.width as usize;
     if window.capacity == 0
         || window.n >= MOST_N
         || window.rescan
@@ -117,7 +126,7 @@ fn prepare(
         || window.back() != 0
         || window.low_ties.count != 0
         || window.attention != usize::MAX
-        || window.room_left() < 2 * width + BLOCK_END
+        || window.room_left() < rows_left * window.width as usize + BLOCK_END
     {
         return;
     }
