@@ -487,3 +487,42 @@ fn a_board_that_skips_a_frame_is_aligned_by_number_not_arrival() {
     );
     assert_eq!(merger.counts[2].frames_missing, 1);
 }
+
+/// `rig plan --shared-rows` predicts each board's load on its taller
+/// rectangle: a band reaching one row into the next captures that row too.
+#[test]
+fn shared_rows_are_in_the_planned_loads() {
+    let dir = common::scratch("rig", "shared-rows-loads");
+    let config = common::small_wfs_config(&dir);
+    let (ok, text) = run(&[
+        "rig",
+        "plan",
+        "--config",
+        config.to_str().unwrap(),
+        "--boards",
+        "3",
+        "--camera-rate",
+        "1000",
+        "--shared-rows",
+    ]);
+    assert!(ok, "{text}");
+    let instructions = |board: &str| -> f64 {
+        let line = text
+            .lines()
+            .find(|l| l.trim_start().starts_with(&format!("{board}:")))
+            .unwrap_or_else(|| panic!("no {board} in {text}"));
+        let before = line.split(" instructions a frame").next().unwrap();
+        before.rsplit(' ').next().unwrap().parse().unwrap()
+    };
+    let model = CostModel::STM32H743;
+    assert_eq!(
+        instructions("board-0"),
+        model.frame_instructions(48 * 17, 3).round(),
+        "{text}"
+    );
+    assert_eq!(
+        instructions("board-2"),
+        model.frame_instructions(48 * 16, 3).round(),
+        "{text}"
+    );
+}

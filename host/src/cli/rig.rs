@@ -210,7 +210,7 @@ fn plan(args: PlanArgs) -> Result<()> {
     }
     let whole = ProcessingConfig::load(&args.config)?;
     let model = model_for(args.board, args.instr_per_px)?;
-    let (plan, loads) =
+    let (plan, mut loads) =
         rig::plan_keeping_up(&whole, args.boards, args.board, &model, args.camera_rate)?;
     let mut rig = Rig::from_plan(whole, args.board, args.camera_rate, &plan)
         .map_err(|e| anyhow::anyhow!("{e}"))?;
@@ -221,6 +221,23 @@ fn plan(args: PlanArgs) -> Result<()> {
         rig = rig
             .with_shared_rows()
             .map_err(|e| anyhow::anyhow!("--shared-rows: {e}"))?;
+        // Each band is a row taller now: its loads again.
+        loads = rig::loads(
+            &rig.whole,
+            &rig.shares(),
+            args.board,
+            &model,
+            args.camera_rate,
+        );
+        if let Some(busiest) = loads.iter().filter_map(|l| l.load).reduce(f64::max) {
+            if busiest > 1.0 {
+                bail!(
+                    "--shared-rows: with the shared rows the busiest board would need {:.0}% of its core: plan more boards (--boards {})",
+                    busiest * 100.0,
+                    rig.boards.len() + 1
+                );
+            }
+        }
     }
     println!(
         "rig plan: {} sub-apertures of {} over {} {} boards, cut in {}",
@@ -345,15 +362,13 @@ pub(super) fn print_rig(rig: &Rig, loads: Option<&[rig::BoardLoad]>) {
     let loads = match loads {
         Some(l) => l,
         None => {
-            let shares: Vec<rig::BoardShare> = rig
-                .boards
-                .iter()
-                .map(|b| rig::BoardShare {
-                    rectangle: b.rectangle,
-                    windows: b.windows.clone(),
-                })
-                .collect();
-            computed = rig::loads(&rig.whole, &shares, rig.kind, &model, rig.camera_rate_hz);
+            computed = rig::loads(
+                &rig.whole,
+                &rig.shares(),
+                rig.kind,
+                &model,
+                rig.camera_rate_hz,
+            );
             &computed
         }
     };
@@ -691,16 +706,14 @@ struct LiveBoards {
 
 impl LiveBoards {
     fn new(rig: &Rig) -> LiveBoards {
-        let shares: Vec<rig::BoardShare> = rig
-            .boards
-            .iter()
-            .map(|b| rig::BoardShare {
-                rectangle: b.rectangle,
-                windows: b.windows.clone(),
-            })
-            .collect();
         let model = rig.kind.cost_model();
-        let loads = rig::loads(&rig.whole, &shares, rig.kind, &model, rig.camera_rate_hz);
+        let loads = rig::loads(
+            &rig.whole,
+            &rig.shares(),
+            rig.kind,
+            &model,
+            rig.camera_rate_hz,
+        );
         LiveBoards {
             done: vec![0; rig.boards.len()],
             dropped: vec![0; rig.boards.len()],

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 use super::part::{board_config, Rectangle};
-use super::plan::{BoardKind, BoardLoad, Plan};
+use super::plan::{BoardKind, BoardLoad, BoardShare, Plan};
 use crate::config_file::ProcessingConfig;
 
 /// One board of a loaded rig.
@@ -112,6 +112,18 @@ impl Rig {
         }
         rig.config_file = Some(config_path);
         Ok(rig)
+    }
+
+    /// Each board's rectangle and windows, as the cost model takes them
+    /// ([`super::loads`]).
+    pub fn shares(&self) -> Vec<BoardShare> {
+        self.boards
+            .iter()
+            .map(|b| BoardShare {
+                rectangle: b.rectangle,
+                windows: b.windows.clone(),
+            })
+            .collect()
     }
 
     /// Pairs of boards `(above, below)` whose rectangles share one camera
