@@ -217,19 +217,10 @@ fn plan_check_and_stream_from_the_command_line() {
     let dir = common::scratch("rig", "cli");
     let config = common::small_wfs_config(&dir);
     let rig_file = dir.join("rig.toml");
-    let (ok, text) = run(&[
-        "rig",
-        "plan",
-        "--config",
-        config.to_str().unwrap(),
-        "--boards",
-        "3",
-        "--camera-rate",
-        "2000",
-        "--out",
-        rig_file.to_str().unwrap(),
-    ]);
-    assert!(ok, "{text}");
+    let text = common::plan_three_boards(
+        &config,
+        &["--camera-rate", "2000", "--out", rig_file.to_str().unwrap()],
+    );
     assert!(
         text.contains("cut in row bands") && text.contains("load"),
         "{text}"
@@ -373,19 +364,15 @@ fn a_boards_part_is_a_configuration_file_of_its_own() {
     .unwrap();
     let rig_file = dir.join("rig.toml");
     let boards = dir.join("boards");
-    let (ok, text) = run(&[
-        "rig",
-        "plan",
-        "--config",
-        config.to_str().unwrap(),
-        "--boards",
-        "3",
-        "--out",
-        rig_file.to_str().unwrap(),
-        "--board-configs",
-        boards.to_str().unwrap(),
-    ]);
-    assert!(ok, "{text}");
+    let text = common::plan_three_boards(
+        &config,
+        &[
+            "--out",
+            rig_file.to_str().unwrap(),
+            "--board-configs",
+            boards.to_str().unwrap(),
+        ],
+    );
     assert!(text.contains("board-2.toml"), "{text}");
     let rig = Rig::load(&rig_file).unwrap();
     for b in &rig.boards {
@@ -494,18 +481,7 @@ fn a_board_that_skips_a_frame_is_aligned_by_number_not_arrival() {
 fn shared_rows_are_in_the_planned_loads() {
     let dir = common::scratch("rig", "shared-rows-loads");
     let config = common::small_wfs_config(&dir);
-    let (ok, text) = run(&[
-        "rig",
-        "plan",
-        "--config",
-        config.to_str().unwrap(),
-        "--boards",
-        "3",
-        "--camera-rate",
-        "1000",
-        "--shared-rows",
-    ]);
-    assert!(ok, "{text}");
+    let text = common::plan_three_boards(&config, &["--camera-rate", "1000", "--shared-rows"]);
     let instructions = |board: &str| -> f64 {
         let line = text
             .lines()

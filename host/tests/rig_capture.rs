@@ -32,41 +32,9 @@ fn capture_with_three_boards_each_cropping_one_camera() {
     let dir = common::scratch("rig", "capture");
     let config = common::small_wfs_config(&dir);
     let rig_file = dir.join("rig.toml");
-    let (ok, text) = run(&[
-        "rig",
-        "plan",
-        "--config",
-        config.to_str().unwrap(),
-        "--boards",
-        "3",
-        "--out",
-        rig_file.to_str().unwrap(),
-    ]);
-    assert!(ok, "{text}");
-    let plain_rig = std::fs::read_to_string(&rig_file).unwrap();
-    assert!(plain_rig.contains("# [sync]"), "{plain_rig}");
-    let synced_file = dir.join("rig-sync.toml");
-    std::fs::write(
-        &synced_file,
-        plain_rig.replace("# [sync]\n# leader", "[sync]\nleader"),
-    )
-    .unwrap();
-    let camera = Arc::new(
-        SharedCamera::new(CameraSpec { seed: 4 }, 100)
-            .with_sync_line()
-            .with_start_delays(vec![0, 3, 0]),
-    );
-    let devices: Vec<InProcessDevice> = (0..3)
-        .map(|b| {
-            InProcessDevice::start(InProcessOptions {
-                camera: Some(camera.board(b)),
-                ..InProcessOptions::default()
-            })
-            .unwrap()
-        })
-        .collect();
-    let ports: Vec<&str> = devices.iter().map(|d| d.port()).collect();
-    let ports = ports.join(",");
+    common::plan_three_boards(&config, &["--out", rig_file.to_str().unwrap()]);
+    let synced_file = with_sync_line(&rig_file);
+    let (devices, ports) = boards_on_one_camera();
     // With --verify --seed 4 unless `extra` gives another seed.
     let capture = |rig: &std::path::Path, extra: &[&str]| {
         let mut args = vec![
@@ -184,24 +152,8 @@ fn simulated_boards_of_one_camera_from_the_command_line() {
     let dir = common::scratch("rig", "simulate-boards");
     let config = common::small_wfs_config(&dir);
     let rig_file = dir.join("rig.toml");
-    let (ok, text) = run(&[
-        "rig",
-        "plan",
-        "--config",
-        config.to_str().unwrap(),
-        "--boards",
-        "3",
-        "--out",
-        rig_file.to_str().unwrap(),
-    ]);
-    assert!(ok, "{text}");
-    let synced_file = dir.join("rig-sync.toml");
-    let plain = std::fs::read_to_string(&rig_file).unwrap();
-    std::fs::write(
-        &synced_file,
-        plain.replace("# [sync]\n# leader", "[sync]\nleader"),
-    )
-    .unwrap();
+    common::plan_three_boards(&config, &["--out", rig_file.to_str().unwrap()]);
+    let synced_file = with_sync_line(&rig_file);
     let (ok, text) = run(&["simulate-device", "--boards", "2"]);
     assert!(!ok && text.contains("--camera"), "{text}");
     let mut child = common::brightpix()
@@ -259,43 +211,14 @@ fn shared_rows_catch_boards_on_different_frames_without_a_reference() {
     let dir = common::scratch("rig", "shared-rows");
     let config = common::small_wfs_config(&dir);
     let rig_file = dir.join("rig.toml");
-    let (ok, text) = run(&[
-        "rig",
-        "plan",
-        "--config",
-        config.to_str().unwrap(),
-        "--boards",
-        "3",
-        "--shared-rows",
-        "--out",
-        rig_file.to_str().unwrap(),
-    ]);
-    assert!(ok, "{text}");
+    common::plan_three_boards(
+        &config,
+        &["--shared-rows", "--out", rig_file.to_str().unwrap()],
+    );
     let rig = Rig::load(&rig_file).unwrap();
     assert_eq!(rig.shared_rows(), [(0, 1), (1, 2)]);
-    let synced_file = dir.join("rig-sync.toml");
-    let plain = std::fs::read_to_string(&rig_file).unwrap();
-    std::fs::write(
-        &synced_file,
-        plain.replace("# [sync]\n# leader", "[sync]\nleader"),
-    )
-    .unwrap();
-    let camera = Arc::new(
-        SharedCamera::new(CameraSpec { seed: 4 }, 100)
-            .with_sync_line()
-            .with_start_delays(vec![0, 3, 0]),
-    );
-    let devices: Vec<InProcessDevice> = (0..3)
-        .map(|b| {
-            InProcessDevice::start(InProcessOptions {
-                camera: Some(camera.board(b)),
-                ..InProcessOptions::default()
-            })
-            .unwrap()
-        })
-        .collect();
-    let ports: Vec<&str> = devices.iter().map(|d| d.port()).collect();
-    let ports = ports.join(",");
+    let synced_file = with_sync_line(&rig_file);
+    let (devices, ports) = boards_on_one_camera();
     let out = dir.join("merged.npy");
     let capture = |rig: &std::path::Path| {
         run(&[
@@ -346,4 +269,44 @@ fn shared_rows_catch_boards_on_different_frames_without_a_reference() {
     assert_eq!(run.edge_check.frames_checked, 10);
     assert_eq!(run.edge_check.frames_disagreeing, 10);
     assert!(!v.all_match());
+}
+
+/// `rig.toml` as `rig plan` wrote it, its commented `[sync]` section
+/// (leader: the first board) taken in, as `rig-sync.toml` beside it.
+fn with_sync_line(rig_file: &std::path::Path) -> std::path::PathBuf {
+    let plain = std::fs::read_to_string(rig_file).unwrap();
+    assert!(plain.contains("# [sync]"), "{plain}");
+    let synced = rig_file.with_file_name("rig-sync.toml");
+    std::fs::write(
+        &synced,
+        plain.replace("# [sync]\n# leader", "[sync]\nleader"),
+    )
+    .unwrap();
+    synced
+}
+
+/// Three in-process boards on one simulated camera (seed 4) with a sync
+/// line, board 1 starting three frame periods late; and their ports, a
+/// comma-separated list for `--ports`.
+fn boards_on_one_camera() -> (Vec<InProcessDevice>, String) {
+    let camera = Arc::new(
+        SharedCamera::new(CameraSpec { seed: 4 }, 100)
+            .with_sync_line()
+            .with_start_delays(vec![0, 3, 0]),
+    );
+    let devices: Vec<InProcessDevice> = (0..3)
+        .map(|b| {
+            InProcessDevice::start(InProcessOptions {
+                camera: Some(camera.board(b)),
+                ..InProcessOptions::default()
+            })
+            .unwrap()
+        })
+        .collect();
+    let ports = devices
+        .iter()
+        .map(|d| d.port())
+        .collect::<Vec<_>>()
+        .join(",");
+    (devices, ports)
 }

@@ -40,3 +40,20 @@ pub fn small_wfs_config(dir: &std::path::Path) -> PathBuf {
     .unwrap();
     config
 }
+
+/// Runs `brightpix rig plan --config CONFIG --boards 3 EXTRA..` and
+/// returns what it printed; panics if it fails.
+pub fn plan_three_boards(config: &std::path::Path, extra: &[&str]) -> String {
+    let mut args = vec![
+        "rig",
+        "plan",
+        "--config",
+        config.to_str().unwrap(),
+        "--boards",
+        "3",
+    ];
+    args.extend_from_slice(extra);
+    let (ok, text) = run(&args);
+    assert!(ok, "{text}");
+    text
+}
