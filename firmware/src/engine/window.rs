@@ -61,7 +61,8 @@ pub struct OpenWindow {
     /// The calibrated value a pixel needs to become a candidate
     /// ([`OpenWindow::admission`] of `low`, `hint` and `strict`), kept with
     /// `floor` and `lanes` by `stream::admission::update_admission` whenever one of
-    /// them changes.
+    /// them changes; higher in a window prepared for the frame's last row
+    /// (`stream::last_row`: just above its `v(N+1)` so far).
     pub(crate) admit: i32,
     /// `-(y << 6) - x` (wrapping): a pixel's packed position is this plus
     /// `(row << 6) + column`.
@@ -74,7 +75,9 @@ pub struct OpenWindow {
     /// the buffer's end).
     pub(crate) back_start: usize,
     /// When a segment leaves `front_end` at or past this address, the row
-    /// kernel stops at the window (see `stream::admission::attention`).
+    /// kernel stops at the window (see `stream::admission::attention`);
+    /// `stream::last_row::PREPARED`, an address never reached, marks a
+    /// window prepared for the frame's last row.
     pub(crate) attention: usize,
     /// Bytes of room a segment can take (`8 width`): when less is left
     /// after a segment, the kernel stops at the window.
