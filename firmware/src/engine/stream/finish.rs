@@ -13,10 +13,23 @@ use crate::engine::window::SubapertureState;
 impl Engine<'_, '_> {
     /// A window's last pixel has arrived: its result, and what it leaves for
     /// the next frame (level filter, seed).
+    #[inline(always)]
     pub(super) fn finish(&mut self, k: usize, sink: &mut impl OutputSink) {
-        if self.memory.open[k].attention == PREPARED && self.finish_prepared(k, sink) {
+        let window = &self.memory.open[k];
+        if window.attention == PREPARED {
+            self.finish_prepared(k, sink);
             return;
         }
+        if self.closed_form && window.capacity != 0 && self.finish_in_closed_form(k, sink) {
+            return;
+        }
+        self.finish_ordinary(k, sink);
+    }
+
+    /// The ordinary end: the cutoff by a selection over the tiers (or a
+    /// rescan), the moments by a pass over the candidates kept.
+    #[inline(never)]
+    fn finish_ordinary(&mut self, k: usize, sink: &mut impl OutputSink) {
         self.finished_in_row = true;
         let memory = &mut self.memory;
         let window = &mut memory.open[k];

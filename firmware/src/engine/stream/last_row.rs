@@ -20,11 +20,12 @@
 //! moments of `p - v` over the pixels above `v` are the sums' closed form,
 //! less `F`'s pixels between `u` and `v`, plus `L`'s above `v`: exact
 //! integer identities, so the result is the ordinary end's bit for bit.
-//! Any doubt (another path attended to the window in the last row, `v` too
-//! deep among the pixels above `u`) falls back to the ordinary end, whose
-//! candidates are all still in place.
+//! The arithmetic is `closed_form`'s. If anything else attends to the
+//! window in the last row (the general path, a kernel stop, a compaction)
+//! the window ends the ordinary way, on its candidates, all still in place.
 
 use super::admission::{admit_at, settle_at_hint};
+use super::closed_form::{cutoff_and_moments, Above};
 use super::{Engine, OutputSink};
 use crate::engine::centroid::Moments;
 use crate::engine::select::{self, Entry, Tiers, WindowRule};
@@ -36,12 +37,6 @@ use brightpix_protocol::SelectionRule;
 /// Whatever else attends to the window in the last row resets it, and the
 /// window then takes the ordinary end.
 pub(super) const PREPARED: usize = usize::MAX - 1;
-
-/// The end finds `v(N+1)` above `u` as the `(C + l - N)`-th smallest of the
-/// pixels above `u`, at most the `l`-th (`C <= N`, `u` being the (N+1)-th
-/// largest of `F`): up to this many, in one pass keeping the smallest
-/// (`select::extreme`); more, the ordinary end.
-const MOST_SMALLEST: usize = 8;
 
 /// Entries of the block near the buffer's end: `u` and the front's length,
 /// the count and the coordinate sums, three for the 64-bit sums.
@@ -155,7 +150,7 @@ fn prepare(
         Ok(cut) if cut.cutoff >= window.hint && cut.cutoff < i32::MAX => cut.cutoff,
         _ => return,
     };
-    let above = Above::sum(&entries[..front], u);
+    let above = Above::over(&entries[..front], u);
     let block = &mut entries[capacity - BLOCK_END..capacity - 1];
     block[0] = Entry {
         value: u,
@@ -179,123 +174,36 @@ fn prepare(
 }
 
 impl Engine<'_, '_> {
-    /// The end of window `k`, prepared for the last row: `false` (nothing
-    /// done) if the ordinary end must compute it. Out of line, so that the
+    /// The end of window `k`, prepared for the last row. Out of line, so that the
     /// ordinary end's code is what it was without preparation (inlined,
     /// this end moved the Cortex-M7's code for every rule: threshold 17.40
     /// -> 17.83 instructions a pixel).
     #[inline(never)]
-    pub(super) fn finish_prepared(&mut self, k: usize, sink: &mut impl OutputSink) -> bool {
-        let window = &mut self.memory.open[k];
+    pub(super) fn finish_prepared(&mut self, k: usize, sink: &mut impl OutputSink) {
+        let window = &self.memory.open[k];
         // SAFETY: the window's buffer (opened with it), no other reference
         // to it alive.
         let entries: &[Entry] = unsafe { window.entries() };
-        let Some((v, moments)) = prepared_end(window, entries) else {
-            return false;
-        };
-        self.finished_in_row = true;
-        window.finished = true;
-        self.stats.windows = self.stats.windows.wrapping_add(1);
-        let held = window.front() + window.hint_ties.count as usize;
-        self.stats.candidates = self.stats.candidates.wrapping_add(held as u32);
-        self.memory.subapertures[window.index as usize]
-            .seed
-            .observe(v, false);
-        sink.subaperture(self.centroider.result(
-            window.index,
-            moments,
-            window.width,
-            window.height,
-        ));
-        true
+        let (v, moments) = prepared_end(window, entries, self.memory.scratch);
+        self.emit(k, v, moments, sink);
     }
 }
 
 /// A prepared window's `v(N+1)` and moments (see the module
-/// documentation), or `None` if the ordinary end must compute them.
-fn prepared_end(window: &OpenWindow, entries: &[Entry]) -> Option<(i32, Moments)> {
+/// documentation).
+fn prepared_end(window: &OpenWindow, entries: &[Entry], scratch: &mut [i32]) -> (i32, Moments) {
     let capacity = window.capacity as usize;
     let block = &entries[capacity - BLOCK_END..capacity - 1];
     let (u, prepared_front) = (block[0].value, block[0].position as usize);
-    let count = block[1].value as usize;
-    let sum_ij = block[1].position;
-    let (sum_i, sum_j) = ((sum_ij & 0xffff) as i64, (sum_ij >> 16) as i64);
     let sum = |e: Entry| (e.value as u32 as i64) | ((e.position as i64) << 32);
-    let (sum_p, sum_pi, sum_pj) = (sum(block[2]), sum(block[3]), sum(block[4]));
+    let sums = Above {
+        sum_p: sum(block[2]),
+        sum_pi: sum(block[3]),
+        sum_pj: sum(block[4]),
+        count: block[1].value as u32,
+        sum_ij: block[1].position,
+    };
     let before = &entries[..prepared_front];
     let last = &entries[prepared_front..window.front()];
-    let n = window.n as usize;
-    let above = count + last.len();
-    let v = if above <= n {
-        u
-    } else {
-        // The m-th smallest pixel above u (m <= |L|, since C <= N).
-        let m = above - n;
-        if m > MOST_SMALLEST {
-            return None;
-        }
-        let values = before.iter().map(|e| e.value).filter(|&p| p > u);
-        select::extreme::<false>(values.chain(last.iter().map(|e| e.value)), m)
-    };
-    let v64 = v as i64;
-    let mut moments = Moments {
-        sum_w: sum_p - v64 * count as i64,
-        sum_wi: sum_pi - v64 * sum_i,
-        sum_wj: sum_pj - v64 * sum_j,
-    };
-    if v > u {
-        // F's pixels above u and below v were summed with a negative weight.
-        for e in before.iter().filter(|e| e.value > u && e.value < v) {
-            weigh(&mut moments, e, v64, -1);
-        }
-    }
-    for e in last.iter().filter(|e| e.value > v) {
-        weigh(&mut moments, e, v64, 1);
-    }
-    Some((v, moments))
-}
-
-/// Adds (`sign` 1) or takes away (-1) `e`'s weight `p - v` in the moments.
-#[inline(always)]
-fn weigh(moments: &mut Moments, e: &Entry, v: i64, sign: i64) {
-    let w = sign * (e.value as i64 - v);
-    moments.sum_w += w;
-    moments.sum_wi += w * (e.position & 63) as i64;
-    moments.sum_wj += w * ((e.position >> 6) & 63) as i64;
-}
-
-/// Sums over the front's pixels above `u`: `p`, `p i`, `p j`, their number,
-/// and `i + 2^16 j` (at most N < 2^10 pixels, so neither half carries).
-struct Above {
-    sum_p: i64,
-    sum_pi: i64,
-    sum_pj: i64,
-    count: u32,
-    sum_ij: u32,
-}
-
-impl Above {
-    /// One pass, its accumulators in registers (inlined into the engine's
-    /// row events they were kept on the stack: 26 instructions a pixel).
-    #[inline(never)]
-    fn sum(front: &[Entry], u: i32) -> Above {
-        let mut above = Above {
-            sum_p: 0,
-            sum_pi: 0,
-            sum_pj: 0,
-            count: 0,
-            sum_ij: 0,
-        };
-        for e in front {
-            if e.value > u {
-                let (p, i, j) = (e.value as i64, e.position & 63, (e.position >> 6) & 63);
-                above.sum_p += p;
-                above.sum_pi += p * i as i64;
-                above.sum_pj += p * j as i64;
-                above.count += 1;
-                above.sum_ij += i | (j << 16);
-            }
-        }
-        above
-    }
+    cutoff_and_moments(u, &sums, before, last, window.n as usize, scratch)
 }

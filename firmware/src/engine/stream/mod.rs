@@ -28,7 +28,10 @@
 //!   path);
 //! - `admission`: what a window admits as it fills (thresholds, the
 //!   kernel's attention stops, room in a full buffer);
-//! - `finish`: a window's end, its cutoff, moments and result.
+//! - `finish`: a window's end, its cutoff, moments and result;
+//!   `closed_form`: the same in one pass for `subtract-next` without a
+//!   level filter, when the front alone reaches the cutoff (the usual
+//!   case); `last_row`: most of that done as the frame's last row begins.
 
 use super::calibrate::{Calibrator, Steps, WindowBounds, With};
 use super::centroid::{Centroider, SubapertureResult};
@@ -40,6 +43,7 @@ use super::window::SubapertureState;
 use brightpix_protocol::{Config, ConfigError, MAX_WINDOW_SIDE};
 
 mod admission;
+mod closed_form;
 mod finish;
 mod last_row;
 mod open;
@@ -146,6 +150,9 @@ pub struct Engine<'c, 'm> {
     /// the push holding the frame's last pixel does not prepare them;
     /// `u16::MAX`: never (another rule, or pushes of half a frame or more).
     prepare_row: u16,
+    /// Windows may end in closed form (`closed_form`): `subtract-next`
+    /// without a level filter.
+    closed_form: bool,
     /// The length of the last push, from which `prepare_row` was set.
     push_len: usize,
     /// Which instance of `push_with` a push takes (the calibration steps
@@ -232,6 +239,8 @@ impl<'c, 'm> Engine<'c, 'm> {
             next_to_open: 0,
             event_row: 0,
             prepare_row: u16::MAX,
+            closed_form: config.selection.rule == brightpix_protocol::SelectionRule::SubtractNext
+                && config.selection.level_filter.is_none(),
             push_len: 0,
             variant: variant(&config),
             open_len: 0,

@@ -1,0 +1,212 @@
+//! A `subtract-next` window's cutoff and moments in closed form, in one pass
+//! over its front, for the windows whose candidates are only that: the
+//! front and the hint's ties, reaching `v(N+1)` (no back tier, no low
+//! ties). Without a level filter the weights are `p - v` over `p > v`, so
+//!
+//! `sum (p - v) i = sum p i - v sum i`
+//!
+//! (and likewise for `j` and the plain sum), over the pixels above `v`: sums
+//! taken over the pixels above the hint, less the few between the hint and
+//! `v`, which are the smallest of them. One pass keeps both: the sums over
+//! the front's values above the hint and its `most` smallest values above
+//! the hint (`most = front - N`, since `v(N+1)` is the `(count - N)`-th
+//! smallest of the `count <= front` values above the hint when `count > N`,
+//! and the hint itself otherwise). Exact integer identities: the result is
+//! the ordinary end's bit for bit. The frame's last row (`last_row`) keeps
+//! such sums too, for the pixels above `v(N+1)` of the candidates so far.
+
+use super::{Engine, OutputSink};
+use crate::engine::centroid::Moments;
+use crate::engine::select::{self, Entry};
+use crate::engine::window::OpenWindow;
+
+/// Below this many front entries the coordinate sums of the pixels above
+/// the hint (each coordinate below 64) fit 16 bits each, packed in one
+/// word.
+const MOST_FRONT: usize = 1024;
+
+/// Sums over a set of pixels: `p`, `p i`, `p j`, their number, and
+/// `i + 2^16 j` (fewer than [`MOST_FRONT`] pixels, so neither half
+/// carries).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) struct Above {
+    pub(super) sum_p: i64,
+    pub(super) sum_pi: i64,
+    pub(super) sum_pj: i64,
+    pub(super) count: u32,
+    pub(super) sum_ij: u32,
+}
+
+impl Above {
+    const NONE: Above = Above {
+        sum_p: 0,
+        sum_pi: 0,
+        sum_pj: 0,
+        count: 0,
+        sum_ij: 0,
+    };
+
+    /// Over the front's pixels above `u`, in one pass, its accumulators in
+    /// registers (inlined into the engine's row events they were kept on
+    /// the stack: 26 instructions a pixel).
+    #[inline(never)]
+    pub(super) fn over(front: &[Entry], u: i32) -> Above {
+        let mut above = Above::NONE;
+        for e in front {
+            if e.value > u {
+                let (p, i, j) = (e.value as i64, e.position & 63, (e.position >> 6) & 63);
+                above.sum_p += p;
+                above.sum_pi += p * i as i64;
+                above.sum_pj += p * j as i64;
+                above.count += 1;
+                above.sum_ij += i | (j << 16);
+            }
+        }
+        above
+    }
+
+    /// The moments of `p - v` over these pixels.
+    #[inline(always)]
+    pub(super) fn moments(&self, v: i32) -> Moments {
+        let v = v as i64;
+        Moments {
+            sum_w: self.sum_p - v * self.count as i64,
+            sum_wi: self.sum_pi - v * (self.sum_ij & 0xffff) as i64,
+            sum_wj: self.sum_pj - v * (self.sum_ij >> 16) as i64,
+        }
+    }
+}
+
+/// A front longer than N by more than this ends the ordinary way: the
+/// cutoff may then lie deep among the values above the hint, and the
+/// ordinary end's selection and one pass over what it keeps beat the
+/// closed form's sums, selection and correction (Cortex-M4, instructions a
+/// pixel: CANARY N = 200 41.17 with 32, 42.61 with 64; N = 60 18.80 with
+/// 16, 18.41 with 32).
+const MOST_ABOVE_N: usize = 32;
+
+/// Up to this deep among the pixels above `u`, `v(N+1)` is found in one
+/// pass keeping the smallest (`select::extreme`); deeper, by a selection on
+/// a copy of their values.
+const MOST_SMALLEST: usize = 8;
+
+/// `v(N+1)` and the moments of a window whose candidates reach `v(N+1)`
+/// and whose pixels above `u` are `before`'s above `u` (summed in `sums`)
+/// and all of `last` (every one above `u`), with `v(N+1) >= u`. `v(N+1)`
+/// is `u` if at most N pixels are above it, else the `(above - N)`-th
+/// smallest above it; the moments are the sums' closed form at `v`, less
+/// `before`'s pixels between `u` and `v` (summed with a negative weight),
+/// plus `last`'s above `v`. `scratch` holds at least as many values as
+/// `before` and `last` together.
+#[inline(always)]
+pub(super) fn cutoff_and_moments(
+    u: i32,
+    sums: &Above,
+    before: &[Entry],
+    last: &[Entry],
+    n: usize,
+    scratch: &mut [i32],
+) -> (i32, Moments) {
+    let above = sums.count as usize + last.len();
+    let values = before
+        .iter()
+        .map(|e| e.value)
+        .filter(|&p| p > u)
+        .chain(last.iter().map(|e| e.value));
+    let v = if above <= n {
+        u
+    } else if above - n <= MOST_SMALLEST {
+        select::extreme::<false>(values, above - n)
+    } else {
+        let copy = &mut scratch[..above];
+        for (c, p) in copy.iter_mut().zip(values) {
+            *c = p;
+        }
+        *copy.select_nth_unstable(above - n - 1).1
+    };
+    let v64 = v as i64;
+    let mut moments = sums.moments(v);
+    if v > u {
+        for e in before.iter().filter(|e| e.value > u && e.value < v) {
+            weigh(&mut moments, e, v64, -1);
+        }
+    }
+    for e in last.iter().filter(|e| e.value > v) {
+        weigh(&mut moments, e, v64, 1);
+    }
+    (v, moments)
+}
+
+/// Whether the candidates of `window` (which selects) are what
+/// [`Engine::finish_in_closed_form`] takes: no back tier or low ties, and
+/// the front with the hint's ties reaching `v(N+1)` (so it is at or above
+/// the hint).
+#[inline(always)]
+fn front_reaches_cutoff(window: &OpenWindow) -> bool {
+    !window.rescan
+        && window.back() == 0
+        && window.low_ties.count == 0
+        && window.front() < MOST_FRONT
+        && window.front() <= window.n as usize + MOST_ABOVE_N
+        && window.front() + window.hint_ties.count as usize > window.n as usize
+}
+
+impl Engine<'_, '_> {
+    /// The end of window `k`, which selects, in closed form (see the module
+    /// documentation), for `subtract-next` without a level filter: `false`
+    /// (nothing done) if the ordinary end must compute it (the window's
+    /// candidates are not only its front and the hint's ties). Out of line
+    /// for the same reason as `finish_prepared`.
+    #[inline(never)]
+    pub(super) fn finish_in_closed_form(&mut self, k: usize, sink: &mut impl OutputSink) -> bool {
+        let window = &self.memory.open[k];
+        if !front_reaches_cutoff(window) {
+            return false;
+        }
+        // SAFETY: the window's buffer (opened with it), no other reference
+        // to it alive.
+        let entries: &[Entry] = unsafe { window.entries() };
+        let front = &entries[..window.front()];
+        let sums = Above::over(front, window.hint);
+        let (v, moments) = cutoff_and_moments(
+            window.hint,
+            &sums,
+            front,
+            &[],
+            window.n as usize,
+            self.memory.scratch,
+        );
+        self.emit(k, v, moments, sink);
+        true
+    }
+
+    /// Window `k`'s end computed (`v(N+1)` and moments, by a closed form):
+    /// the window closed, the seed told and the result out.
+    #[inline(always)]
+    pub(super) fn emit(&mut self, k: usize, v: i32, moments: Moments, sink: &mut impl OutputSink) {
+        let window = &mut self.memory.open[k];
+        self.finished_in_row = true;
+        window.finished = true;
+        self.stats.windows = self.stats.windows.wrapping_add(1);
+        let held = window.front() + window.hint_ties.count as usize;
+        self.stats.candidates = self.stats.candidates.wrapping_add(held as u32);
+        self.memory.subapertures[window.index as usize]
+            .seed
+            .observe(v, false);
+        sink.subaperture(self.centroider.result(
+            window.index,
+            moments,
+            window.width,
+            window.height,
+        ));
+    }
+}
+
+/// Adds (`sign` 1) or takes away (-1) `e`'s weight `p - v` in the moments.
+#[inline(always)]
+pub(super) fn weigh(moments: &mut Moments, e: &Entry, v: i64, sign: i64) {
+    let w = sign * (e.value as i64 - v);
+    moments.sum_w += w;
+    moments.sum_wi += w * (e.position & 63) as i64;
+    moments.sum_wj += w * ((e.position >> 6) & 63) as i64;
+}
