@@ -101,10 +101,18 @@ pub(super) fn attention(window: &OpenWindow, rule: SelectionRule) -> usize {
         // front + ties >= n, then strict at front - at_hint >= n.
         SelectionRule::Threshold if raised => n + window.at_hint as usize,
         SelectionRule::Threshold => n.saturating_sub(ties),
-        // Besides n above the hint, copies of it: the count is a bound, the
-        // copies in the front are only counted when it is reached.
-        SelectionRule::SubtractNextDistinct => n + (ties == 0) as usize,
-        SelectionRule::SubtractMean { count } => n + (count as usize).saturating_sub(ties),
+        // n above the hint besides the front's copies of it counted so far
+        // (`at_hint`, which only grows), and copies of the hint: M for
+        // `subtract-mean`, one for `subtract-next-distinct`. A bound: the
+        // copies that arrived since the last count are counted when it is
+        // reached.
+        SelectionRule::SubtractNextDistinct => {
+            n + window.at_hint as usize + 1usize.saturating_sub(ties + window.at_hint as usize)
+        }
+        SelectionRule::SubtractMean { count } => {
+            n + window.at_hint as usize
+                + (count as usize).saturating_sub(ties + window.at_hint as usize)
+        }
     };
     window.buffer + fewest.max(front + 1) * core::mem::size_of::<Entry>()
 }
