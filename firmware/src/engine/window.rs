@@ -45,7 +45,7 @@ const ENTRY: usize = core::mem::size_of::<Entry>();
 /// at the offsets `scan`'s assembly takes from `offset_of!`; the candidate buffer's two tiers are
 /// kept as addresses (`front_end`, `back_start`) because that is what the
 /// kernel stores through, and everything else derives the tiers' lengths
-/// from them ([`OpenWindow::front`], [`OpenWindow::back`]).
+/// from them (`OpenWindow::front`, `OpenWindow::back`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct OpenWindow {

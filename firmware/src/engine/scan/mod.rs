@@ -20,7 +20,7 @@
 //!   that needs the engine's attention (its front reached
 //!   `OpenWindow::attention`, or less room is left than a segment takes)
 //!   and at a pixel above the bit depth.
-//! - [`scan`], the **general path**: one window's pixels, with the room
+//! - `scan`, the **general path**: one window's pixels, with the room
 //!   checked before every store, for what the kernel leaves (a chunk that
 //!   ends inside a window, a window short of room, odd columns).
 

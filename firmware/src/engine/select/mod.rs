@@ -33,7 +33,7 @@
 //! hint ([`Tiers::covers_hint`]), the back tier is dropped and `low` raised
 //! to the hint, so the rest of the window is filtered harder. Two things can
 //! go wrong, and neither changes a result:
-//! - the buffer fills: [`compact`] raises `low` to the cutoff of the
+//! - the buffer fills: [`Buffer::compact`] raises `low` to the cutoff of the
 //!   candidates so far, dropping only values no rule can need any more; if
 //!   nothing can be dropped the window is marked for a rescan;
 //! - `low` was too high, so at the window's end the candidates do not reach

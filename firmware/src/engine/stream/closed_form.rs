@@ -1,19 +1,20 @@
-//! A `subtract-next` window's cutoff and moments in closed form, in one pass
-//! over its front, for the windows whose candidates are only that: the
-//! front and the hint's ties, reaching `v(N+1)` (no back tier, no low
-//! ties). Without a level filter the weights are `p - v` over `p > v`, so
+//! A `subtract-next` window's cutoff and moments in closed form, for the
+//! windows whose candidates are only their front and the hint's ties,
+//! reaching `v(N+1)` (no back tier, no low ties). Without a level filter
+//! the weights are `p - v` over `p > v`, so
 //!
 //! `sum (p - v) i = sum p i - v sum i`
 //!
-//! (and likewise for `j` and the plain sum), over the pixels above `v`: sums
-//! taken over the pixels above the hint, less the few between the hint and
-//! `v`, which are the smallest of them. One pass keeps both: the sums over
-//! the front's values above the hint and its `most` smallest values above
-//! the hint (`most = front - N`, since `v(N+1)` is the `(count - N)`-th
-//! smallest of the `count <= front` values above the hint when `count > N`,
-//! and the hint itself otherwise). Exact integer identities: the result is
+//! (and likewise for `j` and the plain sum) over the pixels above `v`:
+//! sums taken in one pass over the front's values above the hint
+//! ([`Above::over`]), less the few between the hint and `v`. `v(N+1)` is
+//! the hint if at most N values are above it, else the `(count - N)`-th
+//! smallest of them, found by a second pass keeping the smallest few (or a
+//! selection on a copy, deeper); a third pass takes back out the values
+//! between the hint and `v(N+1)`. Exact integer identities: the result is
 //! the ordinary end's bit for bit. The frame's last row (`last_row`) keeps
-//! such sums too, for the pixels above `v(N+1)` of the candidates so far.
+//! such sums too, for the pixels above `v(N+1)` of the candidates so far,
+//! and ends its windows with the same arithmetic ([`cutoff_and_moments`]).
 
 use super::{Engine, OutputSink};
 use crate::engine::centroid::Moments;

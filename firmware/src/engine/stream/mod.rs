@@ -15,7 +15,7 @@
 //! instruction, and the pixels that can reach its admission threshold
 //! calibrated and made candidates (see `select.rs`). The kernel stops at a
 //! window that needs more than that (its candidates now prove the cutoff
-//! is at or above the hint, or it is short of room: [`Engine::attend`]).
+//! is at or above the hint, or it is short of room: `Engine::attend`).
 //! What the kernel does not take (a chunk that ends inside a window,
 //! windows without selection or awaiting a rescan, odd columns) takes the
 //! general path, a window at a time. Pixels that belong to no window are
