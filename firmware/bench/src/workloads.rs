@@ -384,28 +384,38 @@ pub fn measure<#[cfg(not(brightpix_qemu_bench))] C: Counter, const A: usize>(
         meter.between_frames();
         generator.frame(frame);
         sort::levels(frame, background, grid, w.n as usize, b.levels);
-        // The engine: rows, or runs of `chunk` pixels across rows.
+        // The engine: rows, or runs of `chunk` pixels across rows, counted
+        // in two parts, the pushes before those that carry the frame's last
+        // row, and those: a count per push would add the counter's own
+        // error (a few instructions, which the compiler moves with
+        // unrelated code) a hundred times a frame.
         let results = &mut *b.engine_results;
         let step = w.chunk.unwrap_or(width);
-        let last_row_start = pixels - width;
-        for (c, run) in frame.chunks(step).enumerate() {
-            let (count, pushed) = meter.count(|| {
-                engine.push(run, &mut |r: SubapertureResult| {
-                    results[r.index as usize] = r
-                })
-            });
-            if pushed.is_err() {
-                return Err(Mismatch {
-                    what: "the engine refused a generated pixel",
-                    index: c,
-                });
-            }
-            m.engine += count;
-            // The pushes that carry the frame's last row.
-            if (c + 1) * step > last_row_start {
-                m.engine_last_row += count / w.frames as f64;
-            }
-        }
+        let first_of_last_row = (pixels - width) / step;
+        let (before_last_row, last_row) = frame.split_at(first_of_last_row * step);
+        let mut pushes = |part: &[u16], first: usize| {
+            meter.count(|| {
+                for (c, run) in part.chunks(step).enumerate() {
+                    let pushed = engine.push(run, &mut |r: SubapertureResult| {
+                        results[r.index as usize] = r
+                    });
+                    if pushed.is_err() {
+                        return Err(Mismatch {
+                            what: "the engine refused a generated pixel",
+                            index: first + c,
+                        });
+                    }
+                }
+                Ok(())
+            })
+        };
+        let (count, pushed) = pushes(before_last_row, 0);
+        pushed?;
+        m.engine += count;
+        let (count, pushed) = pushes(last_row, first_of_last_row);
+        pushed?;
+        m.engine += count;
+        m.engine_last_row += count / w.frames as f64;
         // The floor, and its slopes against the engine's.
         let mode = if selects {
             FloorMode::Skip
@@ -420,18 +430,21 @@ pub fn measure<#[cfg(not(brightpix_qemu_bench))] C: Counter, const A: usize>(
             b.levels,
             b.bounds,
         );
+        // Counted as the engine is: the rows before the last, and the last.
+        // One sink for both, so that both run the same instance of
+        // `push_row`.
         let floor_results = &mut *b.floor_results;
-        for (y, row) in frame.chunks_exact(width).enumerate() {
-            let (count, ()) = meter.count(|| {
-                floor.push_row(y, row, &mut |r: SubapertureResult| {
-                    floor_results[r.index as usize] = r
-                })
-            });
-            m.floor += count;
-            if y == width - 1 {
-                m.floor_last_row += count / w.frames as f64;
+        let mut out = |r: SubapertureResult| floor_results[r.index as usize] = r;
+        let (before_last_row, last_row) = frame.split_at(pixels - width);
+        let (count, ()) = meter.count(|| {
+            for (y, row) in before_last_row.chunks_exact(width).enumerate() {
+                floor.push_row(y, row, &mut out);
             }
-        }
+        });
+        m.floor += count;
+        let (count, ()) = meter.count(|| floor.push_row(pixels / width - 1, last_row, &mut out));
+        m.floor += count;
+        m.floor_last_row += count / w.frames as f64;
         let same_arithmetic =
             (w.rule == SelectionRule::SubtractNext || !selects) && w.level_filter.is_none();
         if same_arithmetic {
@@ -454,18 +467,20 @@ pub fn measure<#[cfg(not(brightpix_qemu_bench))] C: Counter, const A: usize>(
                 b.levels,
                 b.bounds,
             );
-            for (y, row) in frame.chunks_exact(width).enumerate() {
-                let (count, ()) =
-                    meter.count(|| all.push_row(y, row, &mut |_r: SubapertureResult| {}));
-                m.calibrate_all += count;
-            }
+            let (count, ()) = meter.count(|| {
+                for (y, row) in frame.chunks_exact(width).enumerate() {
+                    all.push_row(y, row, &mut |_r: SubapertureResult| {});
+                }
+            });
+            m.calibrate_all += count;
         }
         // Every pixel read once.
-        for row in frame.chunks_exact(width) {
-            let (count, sum) = meter.count(|| read_every_pixel(core::hint::black_box(row)));
-            core::hint::black_box(sum);
-            m.memory += count;
-        }
+        let (count, ()) = meter.count(|| {
+            for row in frame.chunks_exact(width) {
+                core::hint::black_box(read_every_pixel(core::hint::black_box(row)));
+            }
+        });
+        m.memory += count;
         // The paper's method.
         if w.sort {
             let sorted = &mut *b.floor_results;
