@@ -39,9 +39,10 @@ const NO_COUNTS: FrameCounts = FrameCounts {
 };
 
 /// A counter that also keeps each measured frame's counts: [`measure`]
-/// calls it, every frame, with `between_frames` and then one count per
-/// engine push, then one per camera row of the floor, then the rest (the
-/// other floors), which it leaves out. Wrapping the counter keeps
+/// calls it, every frame, with `between_frames` and then, in this order,
+/// the engine's pushes before those that carry the frame's last row, those
+/// pushes, the floor's rows before the last, the floor's last row, and the
+/// rest (the other floors), which it leaves out. Wrapping the counter keeps
 /// [`measure`]'s timed code as the QEMU tables have it.
 pub struct Recorder<'a, C> {
     inner: &'a C,
@@ -50,19 +51,11 @@ pub struct Recorder<'a, C> {
     frame: Cell<usize>,
     /// Counts in this frame so far.
     call: Cell<usize>,
-    /// Engine pushes per frame, the first that carries the last row, and
-    /// the floor's rows per frame.
-    pushes: usize,
-    last_row_from: usize,
-    rows: usize,
 }
 
 impl<'a, C: Counter> Recorder<'a, C> {
-    /// For workload `w`, each frame's counts into `samples` (as many as it
-    /// holds).
-    pub fn new(inner: &'a C, w: &Workload, samples: &'a mut [FrameCounts]) -> Self {
-        let (width, pixels) = (w.grid.width(), w.grid.pixels());
-        let step = w.chunk.unwrap_or(width).max(1);
+    /// Each frame's counts into `samples` (as many as it holds).
+    pub fn new(inner: &'a C, samples: &'a mut [FrameCounts]) -> Self {
         for s in samples.iter_mut() {
             *s = NO_COUNTS;
         }
@@ -71,9 +64,6 @@ impl<'a, C: Counter> Recorder<'a, C> {
             samples: Cell::from_mut(samples).as_slice_of_cells(),
             frame: Cell::new(0),
             call: Cell::new(0),
-            pushes: pixels.div_ceil(step),
-            last_row_from: (pixels - width) / step,
-            rows: width,
         }
     }
 
@@ -90,16 +80,18 @@ impl<'a, C: Counter> Recorder<'a, C> {
             return;
         };
         let mut s = slot.get();
-        if k < self.pushes {
-            s.engine += count;
-            if k >= self.last_row_from {
+        match k {
+            0 => s.engine += count,
+            1 => {
+                s.engine += count;
                 s.engine_last_row += count;
             }
-        } else if k < self.pushes + self.rows {
-            s.floor += count;
-            if k == self.pushes + self.rows - 1 {
+            2 => s.floor += count,
+            3 => {
+                s.floor += count;
                 s.floor_last_row += count;
             }
+            _ => {}
         }
         slot.set(s);
     }
@@ -234,7 +226,7 @@ impl<C: BoardCounter, const W: usize, const F: usize> BenchRunner for BoardBench
             engine_results: &mut b.engine_results,
             floor_results: &mut b.floor_results,
         };
-        let recorder = Recorder::new(&self.counter, &w, &mut b.samples[..w.frames]);
+        let recorder = Recorder::new(&self.counter, &mut b.samples[..w.frames]);
         let measured = measure::<_, BOARD_ACROSS>(&w, &recorder, &mut buffers, engine);
         match measured {
             Ok(m) => {

@@ -309,10 +309,11 @@ pub fn config<'a>(
 /// sort's. `A`: the widest grid row the floor holds (at least
 /// `w.grid.across`).
 ///
-/// Every frame, in this order: `meter.between_frames()`, then one count
-/// per engine push (a camera row, or `w.chunk` pixels), one per camera row
-/// of the floor, then the other floors' and the sort's (`device::Recorder`
-/// relies on this order). The code of this function is the QEMU tables':
+/// Every frame, in this order: `meter.between_frames()`, then four
+/// counts: the engine's pushes (camera rows, or `w.chunk` pixels) before
+/// those that carry the frame's last row, those pushes, the floor's rows
+/// before the last, its last row; then the other floors' and the sort's
+/// (`device::Recorder` relies on this order). The code of this function is the QEMU tables':
 /// a change here moves the instructions around the timed calls.
 ///
 /// In the QEMU bench binary (`cfg(brightpix_qemu_bench)`) it counts with
