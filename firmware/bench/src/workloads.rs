@@ -313,8 +313,9 @@ pub fn config<'a>(
 /// counts: the engine's pushes (camera rows, or `w.chunk` pixels) before
 /// those that carry the frame's last row, those pushes, the floor's rows
 /// before the last, its last row; then the other floors' and the sort's
-/// (`device::Recorder` relies on this order). The code of this function is the QEMU tables':
-/// a change here moves the instructions around the timed calls.
+/// (`device::Recorder` relies on this order). The code of this function is
+/// the QEMU tables': a change here moves the instructions around the timed
+/// calls.
 ///
 /// In the QEMU bench binary (`cfg(brightpix_qemu_bench)`) it counts with
 /// that binary's `Meter` by name: generic over the counter, rustc cannot
