@@ -217,6 +217,9 @@ impl Engine<'_, '_> {
         part: &[u16],
         sink: &mut impl OutputSink,
     ) -> Result<(), usize> {
+        if let Some(outcome) = self.kernel_part::<S, CHECK>(part, sink) {
+            return outcome;
+        }
         let start = self.column;
         let mut end = start + part.len() as u16;
         let mut bad = None;
@@ -334,6 +337,85 @@ impl Engine<'_, '_> {
             check_range(&part[gap..], self.max_raw).map_err(|b| gap + b)?;
         }
         bad.map_or(Ok(()), Err)
+    }
+
+    /// [`push_row_part`](Self::push_row_part) in one row-kernel pass, for a
+    /// part that starts and ends at even columns of a word-aligned row
+    /// whose open windows are disjoint and all kernel-ready (below 16 bits,
+    /// also gapless, so that the kernel checks every pixel of the part in
+    /// raster order): as a camera's DMA runs deliver rows, in pieces that
+    /// need not follow windows. The windows the part's ends cut are
+    /// scanned over their columns in the part (their kernel segments
+    /// narrowed for the pass, then restored): a window's row in two pieces
+    /// admits what it admits whole, as on the general path. `None`: the
+    /// part is not such a part (nothing done).
+    #[inline(never)]
+    fn kernel_part<S: Steps, const CHECK: bool>(
+        &mut self,
+        part: &[u16],
+        sink: &mut impl OutputSink,
+    ) -> Option<Result<(), usize>> {
+        let start = self.column;
+        let end = start + part.len() as u16;
+        let row_address = (part.as_ptr() as usize).wrapping_sub(2 * start as usize);
+        if row_address & 3 != 0
+            || (start | end) & 1 != 0
+            || self.not_ready != 0
+            || !self.disjoint
+            || (CHECK && !self.gapless)
+        {
+            return None;
+        }
+        // The windows the part overlaps: from the cursor (the first not
+        // done with the row, which ends after `start`) to the first that
+        // starts at or after `end`.
+        let first = self.cursor;
+        let mut stop = first;
+        while stop < self.open_len && self.memory.open[stop].x < end {
+            stop += 1;
+        }
+        if first == stop {
+            return Some(Ok(()));
+        }
+        let last = stop - 1;
+        {
+            let open = &mut self.memory.open;
+            if open[first].x < start {
+                open[first].segment_start = 2 * start as u32;
+            }
+            if open[last].end_column > end {
+                open[last].segment_end = 2 * end as u32;
+            }
+        }
+        let stopped = self.kernel_run::<S, CHECK>(row_address, first, stop);
+        for k in [first, last] {
+            let window = &mut self.memory.open[k];
+            // Still kernel-ready (an attention stop may have made it not):
+            // its whole segment again.
+            if window.segment_start != window.segment_end {
+                window.segment_start = 2 * window.x as u32;
+                window.segment_end = 2 * window.end_column as u32;
+            }
+        }
+        let (done, outcome) = match stopped {
+            None => (stop, Ok(())),
+            Some((k, pixel)) => (k, Err((pixel - part.as_ptr() as usize) / 2)),
+        };
+        let row = self.row;
+        for k in first..done {
+            let window = &self.memory.open[k];
+            if window.last_row == row && window.end_column <= end {
+                self.finish(k, sink);
+            }
+        }
+        if outcome.is_ok() {
+            self.cursor = if self.memory.open[last].end_column <= end {
+                stop
+            } else {
+                last
+            };
+        }
+        Some(outcome)
     }
 
     /// One window's pixels of the current row on the general path: columns
