@@ -588,8 +588,16 @@ fn copy_row(from: &[u16], to: &mut [u16]) {
         };
         prefilter::copy_words(fw, tw);
     } else {
-        copy_pixels(from, to);
+        copy_unaligned_row(from, to);
     }
+}
+
+/// [`copy_pixels`] out of line, for rows that are not word-aligned: inlined
+/// into [`copy_row`], its set-up ran in every push (CANARY on Cortex-M4
+/// 15.00 against 14.88 instructions a pixel).
+#[inline(never)]
+fn copy_unaligned_row(from: &[u16], to: &mut [u16]) {
+    copy_pixels(from, to);
 }
 
 /// `Engine::variant` for `config`: bit 0 a background map, 1 a gain map, 2
