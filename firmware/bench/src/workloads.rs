@@ -1,6 +1,7 @@
 //! The workloads the benchmark measures, and how one is measured: the engine
 //! and its floors on the same frames, pushed one camera row at a time.
 
+use brightpix_firmware::camera::cut_at_row_end;
 use brightpix_firmware::engine::calibrate::WindowBounds;
 use brightpix_firmware::engine::centroid::Centroider;
 use brightpix_firmware::engine::{Engine, EngineMemory, EngineStats, SubapertureResult};
@@ -38,8 +39,8 @@ pub struct Workload {
     pub frames: usize,
     /// Also measure the paper's sort per sub-aperture.
     pub sort: bool,
-    /// Pixels pushed at a time (a camera's DMA runs, which need not follow
-    /// rows); `None`: one camera row per push.
+    /// Pixels pushed at a time (a camera source's runs, e.g.
+    /// [`source_run`]); `None`: one camera row per push.
     pub chunk: Option<usize>,
 }
 
@@ -64,6 +65,16 @@ pub const CANARY: Workload = Workload {
     sort: true,
     chunk: None,
 };
+
+/// The pixels of each run the board's camera source
+/// (`brightpix_firmware::camera::DcmiSource`, 12-bit pixels two to a word)
+/// delivers from a frame whose words are all there, at most `chunk` (at
+/// least a row, even, like `width`): cut at the last row end it reaches
+/// ([`cut_at_row_end`], the source's own rule), so whole rows, the same
+/// number in every run but perhaps the frame's last.
+pub const fn source_run(chunk: usize, width: usize) -> usize {
+    2 * cut_at_row_end(0, (chunk / 2) as u32, (width / 2) as u32) as usize
+}
 
 /// Every workload of the speed issue.
 pub const ALL: &[Workload] = &[
@@ -98,12 +109,12 @@ pub const ALL: &[Workload] = &[
         sort: false,
         ..CANARY
     },
-    // As the STM32H743's DCMI delivers them: 12-bit pixels in runs of
-    // 256 words (512 pixels) that need not follow rows.
+    // As the STM32H743's DCMI source delivers them: 12-bit pixels in runs
+    // of at most 256 words (512 pixels), cut at row ends.
     Workload {
         name: "canary-12bit-runs-512",
         bit_depth: 12,
-        chunk: Some(512),
+        chunk: Some(source_run(512, CANARY.grid.across * CANARY.grid.side)),
         sort: false,
         ..CANARY
     },

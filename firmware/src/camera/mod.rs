@@ -98,4 +98,4 @@ pub use ring::{
     MAX_HOLD_BACK_WORDS, RING_GRANULE_WORDS,
 };
 pub use soft::{SimulatedCamera, SoftCapture, SoftDma, SoftRing};
-pub use source::{CameraStats, DcmiSource};
+pub use source::{cut_at_row_end, CameraStats, DcmiSource};

@@ -68,6 +68,26 @@ struct Run {
     /// overrun, a run past the expected pixel tells the device loop it lost
     /// data (see [`PixelRun`]).
     gap: bool,
+    /// Words in a camera row, if a row is whole words (else 0): runs are
+    /// cut at row ends ([`cut_at_row_end`]).
+    row_words: u32,
+}
+
+/// The words of a run of `n` words that starts `offset` words into a frame
+/// of rows of `row_words` words: all of them if the run reaches no row's
+/// end after its first word or ends at one, else up to the last row end it
+/// reaches. Nothing is held back (the rest is the next run, in the same
+/// poll when its words are there): the engine takes whole rows by its fast
+/// path and a row's pieces one at a time, so a run that crosses a row end
+/// costs two pieces where the same words cut at the row end cost one.
+pub const fn cut_at_row_end(offset: u32, n: u32, row_words: u32) -> u32 {
+    let into_row = offset % row_words;
+    let past = (into_row + n) % row_words;
+    if into_row + n > row_words && past != 0 {
+        n - past
+    } else {
+        n
+    }
 }
 
 /// A [`PixelSource`] over a circular DMA buffer that a camera interface
@@ -238,6 +258,9 @@ impl<'b, R: DmaRing> DcmiSource<'b, R> {
                 .min(self.chunk_words() as u32) as usize;
             if run.gap {
                 n = n.min(1);
+            } else if run.row_words != 0 {
+                n = cut_at_row_end(run.read.wrapping_sub(run.start), n as u32, run.row_words)
+                    as usize;
             }
             if n == 0 {
                 return Step::Wait;
@@ -429,6 +452,11 @@ impl<R: DmaRing> PixelSource for DcmiSource<'_, R> {
             read: origin,
             skipping: false,
             gap: false,
+            row_words: if (camera.width as usize).is_multiple_of(per_word) {
+                (camera.width as usize / per_word) as u32
+            } else {
+                0
+            },
         });
         self.first_run = true;
         self.arming = !self.ring.armed();
