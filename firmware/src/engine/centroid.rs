@@ -1,6 +1,7 @@
 //! Stage 3: centre of gravity and slopes (SPEC.md §5).
 
 use super::calibrate::{value_in_run_unchecked, Steps};
+use super::select::Entry;
 use brightpix_protocol::Centroid;
 
 /// Weighted sums over a window in window-local pixel indices:
@@ -137,6 +138,77 @@ impl<'a> Centroider<'a> {
     }
 }
 
+/// Sums over the candidates above a level `u`: `p`, `p i`, `p j`, their
+/// number, and `i + 2^16 j` (fewer than 1024 such candidates, so neither
+/// half carries). A window's moments at a cutoff `v >= u` follow from them
+/// in closed form ([`SumsAbove::moments`]) when no candidate lies between
+/// `u` and `v`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SumsAbove {
+    pub sum_p: i64,
+    pub sum_pi: i64,
+    pub sum_pj: i64,
+    pub count: u32,
+    pub sum_ij: u32,
+}
+
+impl SumsAbove {
+    pub const NONE: SumsAbove = SumsAbove {
+        sum_p: 0,
+        sum_pi: 0,
+        sum_pj: 0,
+        count: 0,
+        sum_ij: 0,
+    };
+
+    /// The moments of `p - v` over these pixels.
+    #[inline(always)]
+    pub fn moments(&self, v: i32) -> Moments {
+        let v = v as i64;
+        Moments {
+            sum_w: self.sum_p - v * self.count as i64,
+            sum_wi: self.sum_pi - v * (self.sum_ij & 0xffff) as i64,
+            sum_wj: self.sum_pj - v * (self.sum_ij >> 16) as i64,
+        }
+    }
+}
+
+/// [`SumsAbove`] over the entries of `entries` above `u`, in one pass:
+/// packed positions `(j << 6) | i` (below 4096, as the engine stores
+/// them), fewer than 1024 of them above `u`. On Cortex-M an assembly loop
+/// of thirteen instructions an entry above `u` (the compiler's, its
+/// accumulators short of registers, reloaded `u` from the stack for each);
+/// [`sums_above_portable`] is its twin, which the QEMU benchmark's
+/// self-test compares it with.
+#[inline(always)]
+pub fn sums_above(entries: &[Entry], u: i32) -> SumsAbove {
+    #[cfg(target_arch = "arm")]
+    {
+        dsp::sums_above(entries, u)
+    }
+    #[cfg(not(target_arch = "arm"))]
+    {
+        sums_above_portable(entries, u)
+    }
+}
+
+/// The definition of [`sums_above`].
+#[inline(never)]
+pub fn sums_above_portable(entries: &[Entry], u: i32) -> SumsAbove {
+    let mut above = SumsAbove::NONE;
+    for e in entries {
+        if e.value > u {
+            let (p, i, j) = (e.value as i64, e.position & 63, (e.position >> 6) & 63);
+            above.sum_p += p;
+            above.sum_pi += p * i as i64;
+            above.sum_pj += p * j as i64;
+            above.count += 1;
+            above.sum_ij += i | (j << 16);
+        }
+    }
+    above
+}
+
 /// `clamp(floor((s * 2^16 + F) / 2F) - reference)`: round half up of
 /// s / 2F pixels in 2^-16 pixel.
 #[inline]
@@ -223,6 +295,87 @@ pub fn prefix_sums_background_portable(raw: &[u16], background: &[i32]) -> (i32,
 
 #[cfg(target_arch = "arm")]
 mod dsp {
+    use super::{Entry, SumsAbove};
+
+    /// What the assembly loop of [`sums_above`] leaves, in its registers'
+    /// order: `sum p`, `sum p pos` (`pos = i + 64 j`), `sum p j`,
+    /// `count << 16 | sum j`, `sum pos`.
+    #[repr(C)]
+    struct Raw {
+        sum_p: i64,
+        sum_p_pos: i64,
+        sum_pj: i64,
+        count_j: u32,
+        sum_pos: u32,
+    }
+
+    /// r0 the next entry, r1 the end, r2 `u`, r3 a value, r12 its
+    /// position, lr its row `j`; r4-r11 the sums of [`Raw`], stored
+    /// through the pointer pushed with them. `i` is never extracted:
+    /// `sum p i = sum p pos - 64 sum p j` and `sum i = sum pos - 64 sum j`.
+    #[unsafe(naked)]
+    unsafe extern "C" fn sums_above_loop(
+        entries: *const Entry,
+        end: *const Entry,
+        u: i32,
+        raw: *mut Raw,
+    ) {
+        core::arch::naked_asm!(
+            "push {{r3-r11, lr}}",
+            "movs r4, #0",
+            "movs r5, #0",
+            "movs r6, #0",
+            "movs r7, #0",
+            "mov r8, #0",
+            "mov r9, #0",
+            "mov r10, #0",
+            "mov r11, #0",
+            "cmp r0, r1",
+            "beq 3f",
+            "1:",
+            "ldrd r3, r12, [r0], #8",
+            "cmp r3, r2",
+            "ble 2f",
+            "adds r4, r4, r3",
+            "adc r5, r5, r3, asr #31",
+            "lsr lr, r12, #6",
+            "smlal r6, r7, r12, r3",
+            "smlal r8, r9, lr, r3",
+            "add r11, r11, r12",
+            "add r10, r10, lr",
+            "add r10, r10, #65536",
+            "2:",
+            "cmp r0, r1",
+            "bne 1b",
+            "3:",
+            "pop {{r3}}",
+            "stm r3, {{r4-r11}}",
+            "pop {{r4-r11, pc}}",
+        )
+    }
+
+    #[inline(always)]
+    pub fn sums_above(entries: &[Entry], u: i32) -> SumsAbove {
+        let mut raw = Raw {
+            sum_p: 0,
+            sum_p_pos: 0,
+            sum_pj: 0,
+            count_j: 0,
+            sum_pos: 0,
+        };
+        let range = entries.as_ptr_range();
+        // SAFETY: reads the entries of the slice only, writes `raw`.
+        unsafe { sums_above_loop(range.start, range.end, u, &mut raw) };
+        let sum_j = raw.count_j & 0xffff;
+        SumsAbove {
+            sum_p: raw.sum_p,
+            sum_pi: raw.sum_p_pos - 64 * raw.sum_pj,
+            sum_pj: raw.sum_pj,
+            count: raw.count_j >> 16,
+            sum_ij: (raw.sum_pos - 64 * sum_j) | sum_j << 16,
+        }
+    }
+
     /// [`super::prefix_sums_background`] for `raw` word-aligned, of even,
     /// non-zero length.
     ///

@@ -78,7 +78,7 @@ struct PlanArgs {
     camera_rate: Option<f64>,
     /// Instructions per pixel measured for this configuration on whole rows (`brightpix bench
     /// --config`) instead of the model fitted to the bench's tables; the board's camera interface
-    /// is added (stm32h743: its 12-bit DCMI runs, +0.39).
+    /// is added (stm32h743: its 12-bit DCMI runs, +0.40).
     #[arg(long, value_name = "X")]
     instr_per_px: Option<f64>,
     /// Write the rig here (rig.toml); without it the file is printed.

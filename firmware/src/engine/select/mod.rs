@@ -481,26 +481,40 @@ fn kth_largest_near_ends(values: &[i32], k: usize) -> i32 {
 /// The m-th largest (`LARGEST`) or smallest of `values`, `1 <= m <= 8`.
 #[inline(always)]
 pub(crate) fn extreme<const LARGEST: bool>(values: impl Iterator<Item = i32>, m: usize) -> i32 {
+    extremes::<LARGEST, i32>(values, |x| x, m)[m - 1]
+}
+
+/// The `m` largest (`LARGEST`) or smallest of `items` by `key`, from most
+/// to least extreme (`1 <= m <= 8`, at least `m` items), in one pass that
+/// keeps them in a small sorted array (its first `m`; the rest is
+/// unspecified).
+#[inline(always)]
+pub(crate) fn extremes<const LARGEST: bool, T: Copy + Default>(
+    items: impl Iterator<Item = T>,
+    key: impl Fn(T) -> i32,
+    m: usize,
+) -> [T; 8] {
     // best[..filled] sorted from most to least extreme.
-    let mut best = [0i32; 8];
+    let mut best = [T::default(); 8];
     let mut filled = 0usize;
     let beats = |a: i32, b: i32| if LARGEST { a > b } else { a < b };
-    for x in values {
+    for x in items {
+        let kx = key(x);
         if filled == m {
-            if !beats(x, best[m - 1]) {
+            if !beats(kx, key(best[m - 1])) {
                 continue;
             }
             filled -= 1;
         }
         let mut at = filled;
-        while at > 0 && beats(x, best[at - 1]) {
+        while at > 0 && beats(kx, key(best[at - 1])) {
             best[at] = best[at - 1];
             at -= 1;
         }
         best[at] = x;
         filled += 1;
     }
-    best[m - 1]
+    best
 }
 
 /// The kept set, level and cutoff of `rule` over the candidates (SPEC.md §3).

@@ -7,7 +7,7 @@
 //!
 //! (and likewise for `j` and the plain sum) over the pixels above `v`:
 //! sums taken in one pass over the front's values above the hint
-//! ([`Above::over`]), less the few between the hint and `v`. `v(N+1)` is
+//! ([`centroid::sums_above`]), less the few between the hint and `v`. `v(N+1)` is
 //! the hint if at most N values are above it, else the `(count - N)`-th
 //! smallest of them, found by a second pass keeping the smallest few (or a
 //! selection on a copy, deeper); a third pass takes back out the values
@@ -17,66 +17,14 @@
 //! and ends its windows with the same arithmetic ([`cutoff_and_moments`]).
 
 use super::{Engine, OutputSink};
-use crate::engine::centroid::Moments;
+use crate::engine::centroid::{self, Moments, SumsAbove};
 use crate::engine::select::{self, Entry};
 use crate::engine::window::OpenWindow;
 
 /// Below this many front entries the coordinate sums of the pixels above
 /// the hint (each coordinate below 64) fit 16 bits each, packed in one
-/// word.
+/// word ([`SumsAbove`]).
 const MOST_FRONT: usize = 1024;
-
-/// Sums over a set of pixels: `p`, `p i`, `p j`, their number, and
-/// `i + 2^16 j` (fewer than [`MOST_FRONT`] pixels, so neither half
-/// carries).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) struct Above {
-    pub(super) sum_p: i64,
-    pub(super) sum_pi: i64,
-    pub(super) sum_pj: i64,
-    pub(super) count: u32,
-    pub(super) sum_ij: u32,
-}
-
-impl Above {
-    const NONE: Above = Above {
-        sum_p: 0,
-        sum_pi: 0,
-        sum_pj: 0,
-        count: 0,
-        sum_ij: 0,
-    };
-
-    /// Over the front's pixels above `u`, in one pass, its accumulators in
-    /// registers (inlined into the engine's row events they were kept on
-    /// the stack: 26 instructions a pixel).
-    #[inline(never)]
-    pub(super) fn over(front: &[Entry], u: i32) -> Above {
-        let mut above = Above::NONE;
-        for e in front {
-            if e.value > u {
-                let (p, i, j) = (e.value as i64, e.position & 63, (e.position >> 6) & 63);
-                above.sum_p += p;
-                above.sum_pi += p * i as i64;
-                above.sum_pj += p * j as i64;
-                above.count += 1;
-                above.sum_ij += i | (j << 16);
-            }
-        }
-        above
-    }
-
-    /// The moments of `p - v` over these pixels.
-    #[inline(always)]
-    pub(super) fn moments(&self, v: i32) -> Moments {
-        let v = v as i64;
-        Moments {
-            sum_w: self.sum_p - v * self.count as i64,
-            sum_wi: self.sum_pi - v * (self.sum_ij & 0xffff) as i64,
-            sum_wj: self.sum_pj - v * (self.sum_ij >> 16) as i64,
-        }
-    }
-}
 
 /// A front longer than N by more than this ends the ordinary way: the
 /// cutoff may then lie deep among the values above the hint, and the
@@ -87,8 +35,9 @@ impl Above {
 const MOST_ABOVE_N: usize = 32;
 
 /// Up to this deep among the pixels above `u`, `v(N+1)` is found in one
-/// pass keeping the smallest (`select::extreme`); deeper, by a selection on
-/// a copy of their values.
+/// pass keeping the smallest (`select::extremes`, whole entries when there
+/// is no last row's part, so that they also give the pixels between `u`
+/// and `v`); deeper, by a selection on a copy of their values.
 const MOST_SMALLEST: usize = 8;
 
 /// `v(N+1)` and the moments of a window whose candidates reach `v(N+1)`
@@ -102,13 +51,30 @@ const MOST_SMALLEST: usize = 8;
 #[inline(always)]
 pub(super) fn cutoff_and_moments(
     u: i32,
-    sums: &Above,
+    sums: &SumsAbove,
     before: &[Entry],
     last: &[Entry],
     n: usize,
     scratch: &mut [i32],
 ) -> (i32, Moments) {
     let above = sums.count as usize + last.len();
+    if above > n && above - n <= MOST_SMALLEST && last.is_empty() {
+        // The `m` smallest entries above `u`, kept whole: `v` is the last,
+        // and the entries between `u` and `v` are among the others, so
+        // no second pass over `before` takes them back out.
+        let m = above - n;
+        let smallest = select::extremes::<false, Entry>(
+            before.iter().copied().filter(|e| e.value > u),
+            |e| e.value,
+            m,
+        );
+        let v = smallest[m - 1].value;
+        let mut moments = sums.moments(v);
+        for e in smallest[..m - 1].iter().filter(|e| e.value < v) {
+            weigh(&mut moments, e, v as i64, -1);
+        }
+        return (v, moments);
+    }
     let values = before
         .iter()
         .map(|e| e.value)
@@ -168,7 +134,7 @@ impl Engine<'_, '_> {
         // to it alive.
         let entries: &[Entry] = unsafe { window.entries() };
         let front = &entries[..window.front()];
-        let sums = Above::over(front, window.hint);
+        let sums = centroid::sums_above(front, window.hint);
         let (v, moments) = cutoff_and_moments(
             window.hint,
             &sums,

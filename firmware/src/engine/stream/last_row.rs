@@ -25,9 +25,9 @@
 //! the window ends the ordinary way, on its candidates, all still in place.
 
 use super::admission::{admit_at, settle_at_hint};
-use super::closed_form::{cutoff_and_moments, Above};
+use super::closed_form::cutoff_and_moments;
 use super::{Engine, OutputSink};
-use crate::engine::centroid::Moments;
+use crate::engine::centroid::{self, Moments, SumsAbove};
 use crate::engine::select::{self, Entry, Tiers, WindowRule};
 use crate::engine::window::OpenWindow;
 use brightpix_protocol::SelectionRule;
@@ -150,7 +150,7 @@ fn prepare(
         Ok(cut) if cut.cutoff >= window.hint && cut.cutoff < i32::MAX => cut.cutoff,
         _ => return,
     };
-    let above = Above::over(&entries[..front], u);
+    let above = centroid::sums_above(&entries[..front], u);
     let block = &mut entries[capacity - BLOCK_END..capacity - 1];
     block[0] = Entry {
         value: u,
@@ -196,7 +196,7 @@ fn prepared_end(window: &OpenWindow, entries: &[Entry], scratch: &mut [i32]) -> 
     let block = &entries[capacity - BLOCK_END..capacity - 1];
     let (u, prepared_front) = (block[0].value, block[0].position as usize);
     let sum = |e: Entry| (e.value as u32 as i64) | ((e.position as i64) << 32);
-    let sums = Above {
+    let sums = SumsAbove {
         sum_p: sum(block[2]),
         sum_pi: sum(block[3]),
         sum_pj: sum(block[4]),

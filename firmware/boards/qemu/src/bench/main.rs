@@ -57,12 +57,13 @@ mod workloads;
 use brightpix_board_qemu::{exit, exit_code};
 use brightpix_firmware::engine::calibrate::WindowBounds;
 use brightpix_firmware::engine::centroid::{
-    prefix_sums_background, prefix_sums_background_portable,
+    prefix_sums_background, prefix_sums_background_portable, sums_above, sums_above_portable,
 };
 use brightpix_firmware::engine::prefilter::{
     any_at_least, any_at_least_portable, copy_words, copy_words_portable, uqsub16, uqsub16_portable,
 };
 use brightpix_firmware::engine::scan::check_row_kernel;
+use brightpix_firmware::engine::select::Entry;
 use brightpix_firmware::engine::{StaticEngineMemory, SubapertureResult};
 use brightpix_protocol::SubapertureWindow;
 use cortex_m_rt::entry;
@@ -168,6 +169,7 @@ fn dsp_selftest() {
             fail("the no-selection sums differ from their portable twin");
         }
     }
+    sums_above_selftest(&mut rng);
     if let Err(e) = check_row_kernel(0x2545_f491_4f6c_dd1d, 3_000) {
         println!(
             "round {}, detail {:#x}, entries {:?}",
@@ -176,6 +178,33 @@ fn dsp_selftest() {
         fail(e.what);
     }
     floor_row_selftest(&mut rng);
+}
+
+/// The closed form's sums against their portable twin: random values
+/// around the level (ties with it included), every packed position of a
+/// 64x64 window, up to 80 entries.
+fn sums_above_selftest(rng: &mut Rng) {
+    let mut entries = [Entry::ZERO; 80];
+    for round in 0..3_000 {
+        let len = round % (entries.len() + 1);
+        let spread = [4.0, 300.0, 1e5, 6e7][round % 4];
+        let u = ((rng.next() - 0.5) * spread) as i32;
+        for e in entries[..len].iter_mut() {
+            *e = Entry {
+                value: u + ((rng.next() - 0.4) * spread) as i32,
+                position: (rng.next() * 4096.0) as u32 & 0xfff,
+            };
+        }
+        if round % 5 == 0 {
+            for e in entries[..len].iter_mut().step_by(3) {
+                e.value = u;
+            }
+        }
+        let run = &entries[..len];
+        if sums_above(run, u) != sums_above_portable(run, u) {
+            fail("the closed form's sums differ from their portable twin");
+        }
+    }
 }
 
 /// The floor's row kernel against its portable twin: random rows, levels,
