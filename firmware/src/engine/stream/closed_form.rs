@@ -1,20 +1,27 @@
 //! A `subtract-next` window's cutoff and moments in closed form, for the
-//! windows whose candidates are only their front and the hint's ties,
-//! reaching `v(N+1)` (no back tier, no low ties). Without a level filter
-//! the weights are `p - v` over `p > v`, so
+//! windows without low ties whose candidates reach `v(N+1)`. Without a
+//! level filter the weights are `p - v` over `p > v`, so
 //!
 //! `sum (p - v) i = sum p i - v sum i`
 //!
-//! (and likewise for `j` and the plain sum) over the pixels above `v`:
-//! sums taken in one pass over the front's values above the hint
-//! ([`centroid::sums_above`]), less the few between the hint and `v`. `v(N+1)` is
-//! the hint if at most N values are above it, else the `(count - N)`-th
-//! smallest of them, found by a second pass keeping the smallest few (or a
-//! selection on a copy, deeper); a third pass takes back out the values
-//! between the hint and `v(N+1)`. Exact integer identities: the result is
-//! the ordinary end's bit for bit. The frame's last row (`last_row`) keeps
-//! such sums too, for the pixels above `v(N+1)` of the candidates so far,
-//! and ends its windows with the same arithmetic ([`cutoff_and_moments`]).
+//! (and likewise for `j` and the plain sum) over the pixels above `v`,
+//! from sums taken in one pass ([`centroid::sums_above`]). Two cases:
+//! - the front with the hint's ties reaches `v(N+1)` (the usual case): the
+//!   sums over the front's values above the hint, less the few between the
+//!   hint and `v`. `v(N+1)` is the hint if at most N values are above it,
+//!   else the `(count - N)`-th smallest of them, found by a second pass
+//!   keeping the smallest few, whole, which are also the ones to take back
+//!   out (or, deeper, a selection on a copy and a third pass);
+//! - the front falls short (the spot dimmed or moved since the hint was
+//!   set: about a fifth of CANARY's windows): `v(N+1)` is among the back
+//!   tier's values, found by one pass keeping its largest few, which are
+//!   also its pixels above `v(N+1)`; the front's sums weigh whole
+//!   ([`cutoff_in_back`]).
+//!
+//! Exact integer identities: the result is the ordinary end's bit for
+//! bit. The frame's last row (`last_row`) keeps such sums too, for the
+//! pixels above `v(N+1)` of the candidates so far, and ends its windows
+//! with the same arithmetic ([`cutoff_and_moments`]).
 
 use super::{Engine, OutputSink};
 use crate::engine::centroid::{self, Moments, SumsAbove};
@@ -104,45 +111,93 @@ pub(super) fn cutoff_and_moments(
     (v, moments)
 }
 
-/// Whether the candidates of `window` (which selects) are what
-/// [`Engine::finish_in_closed_form`] takes: no back tier or low ties, and
-/// the front with the hint's ties reaching `v(N+1)` (so it is at or above
-/// the hint).
+/// Whether the front of `window` (which selects, and has no low ties)
+/// with the hint's ties reaches `v(N+1)`, so that it is at or above the
+/// hint and nothing below the hint weighs, and the front is short enough
+/// for [`cutoff_and_moments`].
 #[inline(always)]
 fn front_reaches_cutoff(window: &OpenWindow) -> bool {
-    !window.rescan
-        && window.back() == 0
-        && window.low_ties.count == 0
-        && window.front() < MOST_FRONT
-        && window.front() <= window.n as usize + MOST_ABOVE_N
+    window.front() <= window.n as usize + MOST_ABOVE_N
         && window.front() + window.hint_ties.count as usize > window.n as usize
+}
+
+/// `v(N+1)` and the moments of `window` (which selects, and has no low
+/// ties) when `v(N+1)` lies in its back tier: the front, `F` pixels with
+/// no hint ties, falls short of N + 1, so `v(N+1)` is the `(N + 1 - F)`-th
+/// largest of the back's values, if the back has that many (`None` if
+/// not). Below the hint, it leaves every front pixel weighing: the front's
+/// sums in closed form ([`SumsAbove`]) and the back's pixels above
+/// `v(N+1)`, which the pass that finds it keeps when it is among the
+/// back's few largest.
+#[inline(always)]
+fn cutoff_in_back(
+    window: &OpenWindow,
+    entries: &[Entry],
+    scratch: &mut [i32],
+) -> Option<(i32, Moments)> {
+    let (front, back, n) = (window.front(), window.back(), window.n as usize);
+    // Hint ties come only with `low` raised to the hint (a compaction's or
+    // `raise_to_hint`'s), which empties the back.
+    if window.hint_ties.count != 0 || front > n || n + 1 - front > back {
+        return None;
+    }
+    let k = n + 1 - front;
+    let capacity = window.capacity as usize;
+    let back = &entries[capacity - back..capacity];
+    let front = &entries[..front];
+    Some(if k <= MOST_SMALLEST {
+        let largest = select::extremes::<true, Entry>(back.iter().copied(), |e| e.value, k);
+        let v = largest[k - 1].value;
+        let mut moments = centroid::sums_above(front, v).moments(v);
+        for e in largest[..k - 1].iter().filter(|e| e.value > v) {
+            weigh(&mut moments, e, v as i64, 1);
+        }
+        (v, moments)
+    } else {
+        let v = select::kth_largest(back, k, scratch);
+        let mut moments = centroid::sums_above(front, v).moments(v);
+        for e in back.iter().filter(|e| e.value > v) {
+            weigh(&mut moments, e, v as i64, 1);
+        }
+        (v, moments)
+    })
 }
 
 impl Engine<'_, '_> {
     /// The end of window `k`, which selects, in closed form (see the module
     /// documentation), for `subtract-next` without a level filter: `false`
-    /// (nothing done) if the ordinary end must compute it (the window's
-    /// candidates are not only its front and the hint's ties). Out of line
+    /// (nothing done) if the ordinary end must compute it (a rescan, low
+    /// ties, a long front, or a back tier short of `v(N+1)`). Out of line
     /// for the same reason as `finish_prepared`.
     #[inline(never)]
     pub(super) fn finish_in_closed_form(&mut self, k: usize, sink: &mut impl OutputSink) -> bool {
         let window = &self.memory.open[k];
-        if !front_reaches_cutoff(window) {
+        if window.rescan || window.low_ties.count != 0 || window.front() >= MOST_FRONT {
             return false;
         }
         // SAFETY: the window's buffer (opened with it), no other reference
         // to it alive.
         let entries: &[Entry] = unsafe { window.entries() };
-        let front = &entries[..window.front()];
-        let sums = centroid::sums_above(front, window.hint);
-        let (v, moments) = cutoff_and_moments(
-            window.hint,
-            &sums,
-            front,
-            &[],
-            window.n as usize,
-            self.memory.scratch,
-        );
+        let (v, moments) = if front_reaches_cutoff(window) {
+            let front = &entries[..window.front()];
+            let sums = centroid::sums_above(front, window.hint);
+            cutoff_and_moments(
+                window.hint,
+                &sums,
+                front,
+                &[],
+                window.n as usize,
+                self.memory.scratch,
+            )
+        } else {
+            match cutoff_in_back(window, entries, self.memory.scratch) {
+                Some(end) => end,
+                None => return false,
+            }
+        };
+        // `emit` counts the front and hint ties.
+        let back = window.back() as u32;
+        self.stats.candidates = self.stats.candidates.wrapping_add(back);
         self.emit(k, v, moments, sink);
         true
     }

@@ -30,8 +30,9 @@
 //!   kernel's attention stops, room in a full buffer);
 //! - `finish`: a window's end, its cutoff, moments and result;
 //!   `closed_form`: the same in one pass for `subtract-next` without a
-//!   level filter, when the front alone reaches the cutoff (the usual
-//!   case); `last_row`: most of that done as the frame's last row begins.
+//!   level filter, when the candidates reach the cutoff without low ties
+//!   (almost always); `last_row`: most of that done as the frame's last
+//!   row begins.
 
 use super::calibrate::{Calibrator, Steps, WindowBounds, With};
 use super::centroid::{Centroider, SubapertureResult};
