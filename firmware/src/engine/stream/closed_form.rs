@@ -23,10 +23,12 @@
 //! pixels above `v(N+1)` of the candidates so far, and ends its windows
 //! with the same arithmetic ([`cutoff_and_moments`]).
 
+use super::admission::settle_at_hint;
 use super::{Engine, OutputSink};
 use crate::engine::centroid::{self, Moments, SumsAbove};
 use crate::engine::select::{self, Entry};
 use crate::engine::window::OpenWindow;
+use brightpix_protocol::SelectionRule;
 
 /// Below this many front entries the coordinate sums of the pixels above
 /// the hint (each coordinate below 64) fit 16 bits each, packed in one
@@ -130,11 +132,7 @@ fn front_reaches_cutoff(window: &OpenWindow) -> bool {
 /// `v(N+1)`, which the pass that finds it keeps when it is among the
 /// back's few largest.
 #[inline(always)]
-fn cutoff_in_back(
-    window: &OpenWindow,
-    entries: &[Entry],
-    scratch: &mut [i32],
-) -> Option<(i32, Moments)> {
+fn cutoff_in_back(window: &OpenWindow, scratch: &mut [i32]) -> Option<(i32, Moments)> {
     let (front, back, n) = (window.front(), window.back(), window.n as usize);
     // Hint ties come only with `low` raised to the hint (a compaction's or
     // `raise_to_hint`'s), which empties the back.
@@ -142,6 +140,9 @@ fn cutoff_in_back(
         return None;
     }
     let k = n + 1 - front;
+    // SAFETY: the window's buffer (opened with it), no other reference to
+    // it alive.
+    let entries: &[Entry] = unsafe { window.entries() };
     let capacity = window.capacity as usize;
     let back = &entries[capacity - back..capacity];
     let front = &entries[..front];
@@ -163,6 +164,68 @@ fn cutoff_in_back(
     })
 }
 
+/// `v(N)` and the moments of a `threshold` window (no low ties), whose
+/// kept pixels `p >= v(N)` weigh `p`: the same sums at a level of 0.
+/// - The front with the hint's ties reaches `v(N)` (`F + T >= N`): with
+///   `A` front values above the hint, `v(N)` is the hint if `A < N`, and
+///   every front pixel and hint tie is kept; else the `(A - N + 1)`-th
+///   smallest above the hint, found by one pass keeping the smallest few
+///   whole, which are also the pixels between the hint and `v(N)` to take
+///   back out.
+/// - Else `v(N)` is the `(N - F)`-th largest of the back's values (no hint
+///   ties then, see [`cutoff_in_back`]), and the front and the back's
+///   pixels at or above it are kept: ties with `v(N)` weigh too, so a
+///   second pass over the back takes them.
+///
+/// `None` (the ordinary end) if `v(N)` lies deeper than that.
+#[inline(always)]
+fn threshold_end(window: &mut OpenWindow, scratch: &mut [i32]) -> Option<(i32, Moments)> {
+    let (f, n, hint) = (window.front(), window.n as usize, window.hint);
+    let ties = window.hint_ties;
+    // SAFETY: the window's buffer (opened with it), no other reference to
+    // it alive.
+    let entries: &[Entry] = unsafe { window.entries() };
+    let front = &entries[..f];
+    if f + ties.count as usize >= n {
+        settle_at_hint(window);
+        let above = f - window.at_hint as usize;
+        if above < n {
+            // `hint - 1`: front values are at or above the hint, which is
+            // above i32::MIN (the seed's cutoffs are below 2^26 in size).
+            let mut moments = centroid::sums_above(front, hint.checked_sub(1)?).moments(0);
+            moments.add_group(hint, ties.count, ties.sum_i, ties.sum_j);
+            return Some((hint, moments));
+        }
+        let m = above - n + 1;
+        if m > MOST_SMALLEST {
+            return None;
+        }
+        let smallest = select::extremes::<false, Entry>(
+            front.iter().copied().filter(|e| e.value > hint),
+            |e| e.value,
+            m,
+        );
+        let v = smallest[m - 1].value;
+        let mut moments = centroid::sums_above(front, hint).moments(0);
+        for e in smallest[..m - 1].iter().filter(|e| e.value < v) {
+            weigh(&mut moments, e, 0, -1);
+        }
+        return Some((v, moments));
+    }
+    let back = window.back();
+    if ties.count != 0 || n - f > back {
+        return None;
+    }
+    let capacity = window.capacity as usize;
+    let back = &entries[capacity - back..capacity];
+    let v = select::kth_largest(back, n - f, scratch);
+    let mut moments = centroid::sums_above(front, v).moments(0);
+    for e in back.iter().filter(|e| e.value >= v) {
+        weigh(&mut moments, e, 0, 1);
+    }
+    Some((v, moments))
+}
+
 impl Engine<'_, '_> {
     /// The end of window `k`, which selects, in closed form (see the module
     /// documentation), for `subtract-next` without a level filter: `false`
@@ -171,29 +234,31 @@ impl Engine<'_, '_> {
     /// for the same reason as `finish_prepared`.
     #[inline(never)]
     pub(super) fn finish_in_closed_form(&mut self, k: usize, sink: &mut impl OutputSink) -> bool {
-        let window = &self.memory.open[k];
+        let window = &mut self.memory.open[k];
         if window.rescan || window.low_ties.count != 0 || window.front() >= MOST_FRONT {
             return false;
         }
-        // SAFETY: the window's buffer (opened with it), no other reference
-        // to it alive.
-        let entries: &[Entry] = unsafe { window.entries() };
-        let (v, moments) = if front_reaches_cutoff(window) {
+        let end = if self.config.selection.rule == SelectionRule::Threshold {
+            threshold_end(window, self.memory.scratch)
+        } else if front_reaches_cutoff(window) {
+            // SAFETY: the window's buffer (opened with it), no other
+            // reference to it alive.
+            let entries: &[Entry] = unsafe { window.entries() };
             let front = &entries[..window.front()];
             let sums = centroid::sums_above(front, window.hint);
-            cutoff_and_moments(
+            Some(cutoff_and_moments(
                 window.hint,
                 &sums,
                 front,
                 &[],
                 window.n as usize,
                 self.memory.scratch,
-            )
+            ))
         } else {
-            match cutoff_in_back(window, entries, self.memory.scratch) {
-                Some(end) => end,
-                None => return false,
-            }
+            cutoff_in_back(window, self.memory.scratch)
+        };
+        let Some((v, moments)) = end else {
+            return false;
         };
         // `emit` counts the front and hint ties.
         let back = window.back() as u32;

@@ -151,8 +151,8 @@ pub struct Engine<'c, 'm> {
     /// the push holding the frame's last pixel does not prepare them;
     /// `u16::MAX`: never (another rule, or pushes of half a frame or more).
     prepare_row: u16,
-    /// Windows may end in closed form (`closed_form`): `subtract-next`
-    /// without a level filter.
+    /// Windows may end in closed form (`closed_form`): `subtract-next` or
+    /// `threshold` without a level filter.
     closed_form: bool,
     /// The length of the last push, from which `prepare_row` was set.
     push_len: usize,
@@ -240,8 +240,11 @@ impl<'c, 'm> Engine<'c, 'm> {
             next_to_open: 0,
             event_row: 0,
             prepare_row: u16::MAX,
-            closed_form: config.selection.rule == brightpix_protocol::SelectionRule::SubtractNext
-                && config.selection.level_filter.is_none(),
+            closed_form: matches!(
+                config.selection.rule,
+                brightpix_protocol::SelectionRule::SubtractNext
+                    | brightpix_protocol::SelectionRule::Threshold
+            ) && config.selection.level_filter.is_none(),
             push_len: 0,
             variant: variant(&config),
             open_len: 0,
