@@ -18,6 +18,9 @@
 //!   also its pixels above `v(N+1)`; the front's sums weigh whole
 //!   ([`cutoff_in_back`]).
 //!
+//! `threshold` (`threshold_end`) uses the same sums at a level of 0: its
+//! kept pixels `p >= v(N)` weigh `p`, so ties with `v(N)` weigh too.
+//!
 //! Exact integer identities: the result is the ordinary end's bit for
 //! bit. The frame's last row (`last_row`) keeps such sums too, for the
 //! pixels above `v(N+1)` of the candidates so far, and ends its windows
