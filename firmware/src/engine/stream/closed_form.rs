@@ -231,10 +231,11 @@ fn threshold_end(window: &mut OpenWindow, scratch: &mut [i32]) -> Option<(i32, M
 
 impl Engine<'_, '_> {
     /// The end of window `k`, which selects, in closed form (see the module
-    /// documentation), for `subtract-next` without a level filter: `false`
-    /// (nothing done) if the ordinary end must compute it (a rescan, low
-    /// ties, a long front, or a back tier short of `v(N+1)`). Out of line
-    /// for the same reason as `finish_prepared`.
+    /// documentation), for `subtract-next` or `threshold` without a level
+    /// filter: `false` (nothing done) if the ordinary end must compute it
+    /// (a rescan, low ties, a long front, or a cutoff deeper than the
+    /// closed forms reach). Out of line for the same reason as
+    /// `finish_prepared`.
     #[inline(never)]
     pub(super) fn finish_in_closed_form(&mut self, k: usize, sink: &mut impl OutputSink) -> bool {
         let window = &mut self.memory.open[k];
