@@ -37,6 +37,31 @@ pub enum Reply {
     Bench(super::bench::BenchRow),
 }
 
+impl Reply {
+    /// Whether this is a reply the device gives to a request of `kind`.
+    /// An `Error` can answer any request.
+    pub fn answers(&self, kind: MessageKind) -> bool {
+        use MessageKind as K;
+        match self {
+            Reply::Error(_) => true,
+            Reply::Hello(_) => kind == K::Hello,
+            Reply::Status(_) => kind == K::StatusRequest,
+            Reply::Bench(_) => kind == K::Bench,
+            Reply::Ack(ack) => matches!(
+                (kind, ack),
+                (K::ConfigBegin, Ack::UploadStarted { .. })
+                    | (K::ConfigChunk, Ack::ChunkStored { .. })
+                    | (K::ConfigCommit, Ack::ConfigApplied { .. })
+                    | (K::ConfigAbort, Ack::UploadAborted { .. })
+                    | (K::ResetLevelFilters, Ack::LevelFiltersReset)
+                    | (K::Capture, Ack::CaptureStarted { .. })
+                    | (K::StopCapture, Ack::CaptureStopped { .. })
+                    | (K::Bench, Ack::BenchDone { .. })
+            ),
+        }
+    }
+}
+
 impl Client {
     /// `StatusRequest`: the device's counters.
     pub fn status(&mut self) -> Result<Status, LinkError> {
@@ -162,16 +187,27 @@ impl Client {
         self.close_pixel_fifo();
         let what = format!("{kind:?}");
         self.write_raw(frame, &what)?;
-        let reply = self.wait(&format!("the reply to {what}"), |c| {
+        // A reply that answers another kind of request is not ours: a late
+        // answer to an earlier Hello (QEMU's pty, PROTOCOL.md §10), or the
+        // answers to another program that writes to the port without its
+        // lock. Taking it for ours would fail the request with a reply the
+        // device never gave to it; the caller's own checks (the stream's
+        // digest) find the other program. If nothing else comes, the
+        // first one skipped is reported.
+        let mut skipped = None;
+        let waited = self.wait(&format!("the reply to {what}"), |c| {
             while let Some(reply) = c.replies.pop_front() {
-                match (&reply, kind) {
-                    (Reply::Hello(_), MessageKind::Hello) => return Some(reply),
-                    (Reply::Hello(_), _) => {} // late answer to an earlier Hello
-                    _ => return Some(reply),
+                if reply.answers(kind) {
+                    return Some(reply);
                 }
+                skipped.get_or_insert(reply);
             }
             None
-        })?;
+        });
+        let reply = match (waited, skipped) {
+            (Err(LinkError::Timeout { .. }), Some(other)) => return Err(unexpected(&what, &other)),
+            (waited, _) => waited?,
+        };
         match reply {
             Reply::Error(error) => Err(LinkError::Device {
                 request: what,
@@ -202,5 +238,197 @@ fn describe_upload_message(message: &HostMessage<'_>, k: usize, total: usize) ->
             *offset as usize + bytes.len()
         ),
         other => format!("{:?} (message {k} of {total})", other.kind()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::VecDeque;
+    use std::io::{self, Read, Write};
+
+    use brightpix_protocol::wire::{
+        decode, encode, Capabilities, DeviceMessage, HelloReply, PixelSourceKind, Status,
+        MAX_FRAME_LEN,
+    };
+
+    use super::*;
+    use crate::link::Port;
+
+    /// A device that answers Hello and StatusRequest, and puts `foreign`
+    /// (another program's answer) before its reply to the first status.
+    struct Scripted {
+        written: Vec<u8>,
+        to_host: VecDeque<u8>,
+        foreign: Option<DeviceMessage<'static>>,
+    }
+
+    impl Scripted {
+        fn send(&mut self, message: &DeviceMessage<'_>) {
+            let mut buf = vec![0u8; MAX_FRAME_LEN];
+            let n = encode(message, &mut buf).unwrap().len();
+            self.to_host.extend(&buf[..n]);
+        }
+
+        fn answer(&mut self, mut frame: Vec<u8>) {
+            match decode::<HostMessage>(&mut frame) {
+                Ok(HostMessage::Hello { protocol, session }) => {
+                    self.send(&DeviceMessage::HelloReply(HelloReply {
+                        version: protocol.version,
+                        schema: protocol.schema,
+                        session,
+                        capabilities: Capabilities {
+                            max_subapertures: 16,
+                            max_camera_pixels: 0,
+                            max_open_windows: 4,
+                            pool_entries: 64,
+                            history_pixels: 1024,
+                            scratch_entries: 64,
+                            max_results_per_row: 4,
+                            max_frame_bytes: MAX_FRAME_LEN as u32,
+                            pixel_source: PixelSourceKind::Link,
+                            board: "scripted",
+                        },
+                    }))
+                }
+                Ok(HostMessage::StatusRequest) => {
+                    if let Some(foreign) = self.foreign.take() {
+                        self.send(&foreign);
+                    }
+                    self.send(&DeviceMessage::Status(Status {
+                        config_id: Some(5),
+                        ..Status::default()
+                    }));
+                }
+                _ => {}
+            }
+        }
+    }
+
+    impl Read for Scripted {
+        fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+            if self.to_host.is_empty() {
+                return Err(io::ErrorKind::TimedOut.into());
+            }
+            let n = buf.len().min(self.to_host.len());
+            for (b, x) in buf.iter_mut().zip(self.to_host.drain(..n)) {
+                *b = x;
+            }
+            Ok(n)
+        }
+    }
+
+    impl Write for Scripted {
+        fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+            for &b in buf {
+                self.written.push(b);
+                if b == 0 {
+                    let frame = std::mem::take(&mut self.written);
+                    if frame.len() > 1 {
+                        self.answer(frame);
+                    }
+                }
+            }
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl Port for Scripted {
+        fn set_io_timeout(&mut self, _: Duration) -> io::Result<()> {
+            Ok(())
+        }
+        fn describe(&self) -> String {
+            "scripted".into()
+        }
+    }
+
+    fn client(foreign: DeviceMessage<'static>) -> Client {
+        let port = Scripted {
+            written: Vec::new(),
+            to_host: VecDeque::new(),
+            foreign: Some(foreign),
+        };
+        Client::connect(Box::new(port)).unwrap()
+    }
+
+    /// Another program's upload answered mid-stream (issue 27 item 9: seen
+    /// in CI as "unexpected reply to StatusRequest: Ack(ConfigApplied ..)"):
+    /// the status request still gets the device's status.
+    #[test]
+    fn another_programs_acknowledgement_is_not_the_reply() {
+        let applied = DeviceMessage::Ack(Ack::ConfigApplied {
+            config_id: 77,
+            open_windows: 2,
+            pool_entries: 128,
+        });
+        let status = client(applied).status().unwrap();
+        assert_eq!(status.config_id, Some(5));
+    }
+
+    /// An error can answer any request: it is not skipped.
+    #[test]
+    fn an_error_answers_any_request() {
+        let error = DeviceMessage::Error(DeviceError::NoUpload);
+        match client(error).status() {
+            Err(LinkError::Device { error, .. }) => assert_eq!(error, DeviceError::NoUpload),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn each_acknowledgement_answers_its_request_only() {
+        use MessageKind as K;
+        let kinds = [
+            K::Hello,
+            K::ConfigBegin,
+            K::ConfigChunk,
+            K::ConfigCommit,
+            K::ConfigAbort,
+            K::StatusRequest,
+            K::ResetLevelFilters,
+            K::PixelRows,
+            K::Capture,
+            K::StopCapture,
+            K::Bench,
+        ];
+        let acks = [
+            (K::ConfigBegin, Ack::UploadStarted { upload_id: 1 }),
+            (
+                K::ConfigChunk,
+                Ack::ChunkStored {
+                    upload_id: 1,
+                    table: brightpix_protocol::wire::Table::Windows,
+                    end: 0,
+                },
+            ),
+            (
+                K::ConfigCommit,
+                Ack::ConfigApplied {
+                    config_id: 1,
+                    open_windows: 1,
+                    pool_entries: 1,
+                },
+            ),
+            (K::ConfigAbort, Ack::UploadAborted { upload_id: None }),
+            (K::ResetLevelFilters, Ack::LevelFiltersReset),
+            (K::Capture, Ack::CaptureStarted { frames: 1 }),
+            (K::StopCapture, Ack::CaptureStopped { frames: 1 }),
+            (K::Bench, Ack::BenchDone { workloads: 1 }),
+        ];
+        for (own, ack) in acks {
+            for kind in kinds {
+                assert_eq!(
+                    Reply::Ack(ack).answers(kind),
+                    kind == own,
+                    "{ack:?} {kind:?}"
+                );
+            }
+        }
+        for kind in kinds {
+            let status = Reply::Status(Status::default());
+            assert_eq!(status.answers(kind), kind == K::StatusRequest);
+        }
     }
 }
