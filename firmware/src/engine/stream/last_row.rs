@@ -9,7 +9,11 @@
 //! runs of 512 pixels on a 112-pixel camera, six rows), a window whose
 //! candidates reach `v(N+1)` (its back tier dropped, admission strict)
 //! takes `u = v(N+1)` of its candidates so far (`F`: the front and the
-//! hint's ties). The final `v(N+1)` is at least `u`, so from then on the
+//! hint's ties). A window whose front still falls short of N + 1 (its
+//! spot dimmed or moved since the hint was set: a quarter of the ELT
+//! workload's last windows) first lowers its hint to that `u`, which then
+//! lies in its back tier, keeping the back's entries at or above it
+//! ([`lower_hint_to_cutoff`]), and is prepared the same way. The final `v(N+1)` is at least `u`, so from then on the
 //! window admits only `p > u` (the set `L`), and of `F` only the pixels
 //! above `u` can be kept: their sums
 //! (`sum p`, `sum p i`, `sum p j`, `sum i`, `sum j`) and count `C` go near
@@ -51,6 +55,14 @@ const MOST_N: u16 = 1024;
 /// admitted pixel at both free ends of the buffer (only the front's copy
 /// counts), so the entry before `back_start` is scribbled on.
 const BLOCK_END: usize = BLOCK + 1;
+
+/// [`lower_hint_to_cutoff`] only up to this N: with more, the prepared
+/// end's selection among the (about N) pixels above `u` costs more than
+/// the closed form that ends the window without lowering (Cortex-M4,
+/// CANARY N = 200: 39.61 instructions a pixel and a last row of 29,125
+/// when lowered, 38.53 and 25,594 when not; N = 20 and the ELT workload
+/// are lowered).
+const MOST_LOWERED_N: usize = 32;
 
 impl Engine<'_, '_> {
     /// Pushes of `len` pixels from now on: where the windows of the
@@ -114,14 +126,20 @@ fn prepare(
     scratch: &mut [i32],
     rows_left: usize,
 ) {
-    if window.capacity == 0
-        || window.n >= MOST_N
-        || window.rescan
-        || !window.strict
-        || window.back() != 0
-        || window.low_ties.count != 0
-        || window.attention != usize::MAX
-        || window.room_left() < rows_left * window.width as usize + BLOCK_END
+    let room = rows_left * window.width as usize + BLOCK_END;
+    if window.capacity == 0 || window.n >= MOST_N || window.rescan || window.low_ties.count != 0 {
+        return;
+    }
+    let lowered = if window.strict {
+        None
+    } else {
+        match lower_hint_to_cutoff(window, scratch, room) {
+            Some(u) => Some(u),
+            None => return,
+        }
+    };
+    if lowered.is_none()
+        && (window.back() != 0 || window.attention != usize::MAX || window.room_left() < room)
     {
         return;
     }
@@ -130,26 +148,34 @@ fn prepare(
     let capacity = window.capacity as usize;
     // SAFETY: the window's live buffer, no other reference to it.
     let entries = unsafe { window.entries() };
-    let rule = WindowRule {
-        rule: SelectionRule::SubtractNext,
-        n: window.n,
-        pixels: window.pixels(),
+    let u = match lowered {
+        Some(u) => u,
+        None => {
+            let rule = WindowRule {
+                rule: SelectionRule::SubtractNext,
+                n: window.n,
+                pixels: window.pixels(),
+            };
+            let mut tiers = Tiers {
+                front: &entries[..front],
+                front_at_hint: window.at_hint,
+                hint: window.hint,
+                hint_ties: window.hint_ties.count,
+                back: &[],
+                low: window.low,
+                low_ties: 0,
+                complete: false,
+                scratch,
+            };
+            match select::cut(&rule, &mut tiers) {
+                Ok(cut) if cut.cutoff >= window.hint => cut.cutoff,
+                _ => return,
+            }
+        }
     };
-    let mut tiers = Tiers {
-        front: &entries[..front],
-        front_at_hint: window.at_hint,
-        hint: window.hint,
-        hint_ties: window.hint_ties.count,
-        back: &[],
-        low: window.low,
-        low_ties: 0,
-        complete: false,
-        scratch,
-    };
-    let u = match select::cut(&rule, &mut tiers) {
-        Ok(cut) if cut.cutoff >= window.hint && cut.cutoff < i32::MAX => cut.cutoff,
-        _ => return,
-    };
+    if u == i32::MAX {
+        return;
+    }
     let above = centroid::sums_above(&entries[..front], u);
     let block = &mut entries[capacity - BLOCK_END..capacity - 1];
     block[0] = Entry {
@@ -171,6 +197,70 @@ fn prepare(
     }
     window.attention = PREPARED;
     admit_at(window, config, max_raw, u + 1);
+}
+
+/// A window whose front falls short of N + 1 (the spot dimmed or moved
+/// since its hint was set, so `v(N+1)` lies in the back tier): its hint
+/// lowered to `u`, the `v(N+1)` of its candidates so far (the
+/// `(N + 1 - F)`-th largest of the back), and raised to it as
+/// `raise_to_hint` raises a window to its hint. The back's entries at or
+/// above `u` move to the front's end; the rest go, since the final
+/// `v(N+1)` is at least `u`; admission becomes strict. The window is then
+/// one whose hint was `u` all along (its front every pixel at or above
+/// it), which [`prepare`] takes like any other, and which still ends the
+/// ordinary way if anything attends to it later. Returns `u`, with the
+/// window's admission and attention left for the caller to set; `None`,
+/// and the window unchanged, if it has hint ties (they come only with the back emptied),
+/// if its front already reaches N + 1 or its back is too short, or if
+/// fewer than `room` entries would be left free.
+fn lower_hint_to_cutoff(window: &mut OpenWindow, scratch: &mut [i32], room: usize) -> Option<i32> {
+    let (front, back, n) = (window.front(), window.back(), window.n as usize);
+    if window.hint_ties.count != 0 || n > MOST_LOWERED_N || front > n || n + 1 - front > back {
+        return None;
+    }
+    let capacity = window.capacity as usize;
+    // SAFETY: the window's live buffer, no other reference to it.
+    let entries = unsafe { window.entries() };
+    let back_start = capacity - back;
+    let u = select::kth_largest(&entries[back_start..], n + 1 - front, scratch);
+    // The copies below land in the free space, never on a back entry not
+    // yet read: at once if the whole back fits there, else after counting
+    // them. Until the front is set they are scratch, so a window left with
+    // too little room is left unchanged.
+    let free = back_start - front;
+    if free < back {
+        let moved = entries[back_start..]
+            .iter()
+            .filter(|e| e.value >= u)
+            .count();
+        if free < moved {
+            return None;
+        }
+    }
+    let (mut to, mut at_u) = (front, 0);
+    for from in back_start..capacity {
+        let e = entries[from];
+        if e.value >= u {
+            entries[to] = e;
+            to += 1;
+            at_u += (e.value == u) as u16;
+        }
+    }
+    if capacity - to < room {
+        return None;
+    }
+    window.set_front(to);
+    window.set_back(0);
+    window.hint = u;
+    window.low = u;
+    // The old front's entries are above the old hint, so above `u`.
+    window.at_hint = at_u;
+    window.counted = to as u16;
+    // Strict, as after `raise_to_hint`; admission and attention are the
+    // caller's to set.
+    window.strict = true;
+    window.raise = false;
+    Some(u)
 }
 
 impl Engine<'_, '_> {
