@@ -13,7 +13,8 @@
 //! spot dimmed or moved since the hint was set: a quarter of the ELT
 //! workload's last windows) first lowers its hint to that `u`, which then
 //! lies in its back tier, keeping the back's entries at or above it
-//! ([`lower_hint_to_cutoff`]), and is prepared the same way. The final `v(N+1)` is at least `u`, so from then on the
+//! ([`lower_hint_to_cutoff`]), and is prepared the same way. The final
+//! `v(N+1)` is at least `u`, so from then on the
 //! window admits only `p > u` (the set `L`), and of `F` only the pixels
 //! above `u` can be kept: their sums
 //! (`sum p`, `sum p i`, `sum p j`, `sum i`, `sum j`) and count `C` go near
@@ -210,12 +211,19 @@ fn prepare(
 /// it), which [`prepare`] takes like any other, and which still ends the
 /// ordinary way if anything attends to it later. Returns `u`, with the
 /// window's admission and attention left for the caller to set; `None`,
-/// and the window unchanged, if it has hint ties (they come only with the back emptied),
-/// if its front already reaches N + 1 or its back is too short, or if
-/// fewer than `room` entries would be left free.
+/// and the window unchanged, if it has hint ties (they come only with the
+/// back emptied) or low ties (pixels equal to `low` outside the buffer,
+/// which `u` may equal), if N is above [`MOST_LOWERED_N`], if its front
+/// already reaches N + 1 or its back is too short, or if fewer than
+/// `room` entries would be left free.
 fn lower_hint_to_cutoff(window: &mut OpenWindow, scratch: &mut [i32], room: usize) -> Option<i32> {
     let (front, back, n) = (window.front(), window.back(), window.n as usize);
-    if window.hint_ties.count != 0 || n > MOST_LOWERED_N || front > n || n + 1 - front > back {
+    if window.hint_ties.count != 0
+        || window.low_ties.count != 0
+        || n > MOST_LOWERED_N
+        || front > n
+        || n + 1 - front > back
+    {
         return None;
     }
     let capacity = window.capacity as usize;
