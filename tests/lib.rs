@@ -183,6 +183,55 @@ pub fn case() -> impl Strategy<Value = (Case, Vec<Vec<u16>>, Vec<usize>)> {
     })
 }
 
+/// The engine on `frames`, pushed in pieces of `chunks`' lengths (cycled),
+/// against the reference frame by frame, bit for bit: the first
+/// difference as a proptest failure naming the frame and sub-aperture.
+pub fn engine_matches_reference(
+    case: &Case,
+    frames: &[Vec<u16>],
+    chunks: &[usize],
+) -> Result<(), TestCaseError> {
+    let config = case.view();
+    let mut reference =
+        brightpix::reference::Reference::new(&config).expect("generated configurations are valid");
+    let mut engine = brightpix::engine_runner::HostEngine::new(config)
+        .expect("generated configurations are valid");
+    let mut chunk_lengths = chunks.iter().copied().cycle();
+    let engine_frames = engine
+        .process_chunked(frames.iter().map(Vec::as_slice), &mut chunk_lengths)
+        .expect("generated frames are in range");
+    prop_assert_eq!(engine_frames.len(), frames.len());
+    for (f, (frame, engine_results)) in frames.iter().zip(&engine_frames).enumerate() {
+        let expected = reference
+            .process_frame(frame)
+            .expect("generated frames are in range");
+        prop_assert_eq!(expected.len(), engine_results.len());
+        for (want, got) in expected.iter().zip(engine_results) {
+            prop_assert_eq!(
+                (
+                    want.index,
+                    want.slope_x,
+                    want.slope_y,
+                    want.flux,
+                    want.valid
+                ),
+                (
+                    got.index as usize,
+                    got.slope_x,
+                    got.slope_y,
+                    got.flux,
+                    got.valid
+                ),
+                "frame {} sub-aperture {} window {:?}",
+                f,
+                want.index,
+                case.windows[want.index]
+            );
+        }
+    }
+    Ok(())
+}
+
 /// The engine itself on whole frames, results in emission order: what a
 /// device or a camera source must reproduce.
 pub fn direct(
