@@ -5,6 +5,15 @@ pub use brightpix::config_file::{PixelCounts, ProcessingConfig};
 use brightpix_protocol::{Camera, LevelFilter, SelectionRule, SubapertureWindow};
 use proptest::prelude::*;
 
+/// Proptest cases a differential test runs: `PROPTEST_CASES` if set, else
+/// `default`.
+pub fn cases_or(default: u32) -> u32 {
+    std::env::var("PROPTEST_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
 /// A random configuration: the host's owned configuration type.
 pub type Case = ProcessingConfig;
 

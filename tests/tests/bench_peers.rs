@@ -16,11 +16,7 @@ use brightpix_tests::{case, PixelCounts};
 use proptest::prelude::*;
 
 fn cases() -> u32 {
-    std::env::var("PROPTEST_CASES")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(10_000)
-        / 20
+    brightpix_tests::cases_or(10_000) / 20
 }
 
 proptest! {

@@ -11,10 +11,7 @@ use brightpix_tests::{Case, PixelCounts};
 use proptest::prelude::*;
 
 fn cases() -> u32 {
-    std::env::var("PROPTEST_CASES")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(2_000)
+    brightpix_tests::cases_or(2_000)
 }
 
 /// One frame: noise in `0..=noise` everywhere, and in each window a spot

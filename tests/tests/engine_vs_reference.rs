@@ -8,10 +8,7 @@ use proptest::prelude::*;
 
 /// Cases per run; `PROPTEST_CASES` overrides.
 fn cases() -> u32 {
-    std::env::var("PROPTEST_CASES")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(10_000)
+    brightpix_tests::cases_or(10_000)
 }
 
 proptest! {

@@ -15,11 +15,7 @@ use proptest::prelude::*;
 
 /// Cases per run; `PROPTEST_CASES` overrides.
 fn cases() -> u32 {
-    std::env::var("PROPTEST_CASES")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(10_000)
-        / 20
+    brightpix_tests::cases_or(10_000) / 20
 }
 
 fn shape(camera: brightpix_protocol::Camera, frames: usize) -> FrameShape {
