@@ -4,7 +4,10 @@
 //! the last frame is often wrong and a window's `v(N+1)` falls below its
 //! hint (the last row's windows then lower their hint to the cutoff so far
 //! before they are prepared). Uniform random frames (`engine_vs_reference`)
-//! rarely do that.
+//! rarely do that. The other rules on the same frames: their closed-form
+//! ends (`stream::closed_form`) take `v(N)` from above the hint, at the
+//! hint or (the ordinary end) below it, and their level from the front,
+//! the hint's copies, the back or the low ties, as the spot moves.
 
 use brightpix_protocol::{Camera, SelectionRule, SubapertureWindow};
 use brightpix_tests::{Case, PixelCounts};
@@ -34,8 +37,11 @@ fn frame(camera: Camera, side: u16, noise: &[u16], spots: &[(u16, u16, u16)]) ->
     out
 }
 
-fn moving_spots() -> impl Strategy<Value = (Case, Vec<Vec<u16>>, Vec<usize>)> {
+fn moving_spots(
+    rule: impl Strategy<Value = SelectionRule>,
+) -> impl Strategy<Value = (Case, Vec<Vec<u16>>, Vec<usize>)> {
     (
+        rule,
         4u16..=12,
         2u16..=4,
         2u16..=4,
@@ -43,7 +49,7 @@ fn moving_spots() -> impl Strategy<Value = (Case, Vec<Vec<u16>>, Vec<usize>)> {
         1u16..=40,
         0u16..=40,
     )
-        .prop_flat_map(|(side, across, down, frame_count, n, noise)| {
+        .prop_flat_map(|(rule, side, across, down, frame_count, n, noise)| {
             let camera = Camera {
                 width: side * across,
                 height: side * down,
@@ -52,7 +58,7 @@ fn moving_spots() -> impl Strategy<Value = (Case, Vec<Vec<u16>>, Vec<usize>)> {
             let windows = (across * down) as usize;
             let spot = (0..side, 0..side, 0u16..=4095);
             (
-                Just((camera, side, n)),
+                Just((camera, side, n, rule)),
                 prop::collection::vec(
                     (
                         prop::collection::vec(0..=noise, camera.pixel_count()),
@@ -67,7 +73,7 @@ fn moving_spots() -> impl Strategy<Value = (Case, Vec<Vec<u16>>, Vec<usize>)> {
                 ],
             )
         })
-        .prop_map(|((camera, side, n), frames, chunks)| {
+        .prop_map(|((camera, side, n, rule), frames, chunks)| {
             let across = camera.width / side;
             let windows = (0..(camera.width / side) * (camera.height / side))
                 .map(|k| SubapertureWindow {
@@ -84,7 +90,7 @@ fn moving_spots() -> impl Strategy<Value = (Case, Vec<Vec<u16>>, Vec<usize>)> {
                 background: None,
                 gain: None,
                 threshold: None,
-                rule: SelectionRule::SubtractNext,
+                rule,
                 pixels: PixelCounts::All(n.min(side * side - 1)),
                 level_filter: None,
                 reference_slopes: None,
@@ -107,7 +113,20 @@ proptest! {
     })]
 
     #[test]
-    fn engine_matches_reference_on_moving_spots((case, frames, chunks) in moving_spots()) {
+    fn engine_matches_reference_on_moving_spots(
+        (case, frames, chunks) in moving_spots(Just(SelectionRule::SubtractNext))
+    ) {
+        brightpix_tests::engine_matches_reference(&case, &frames, &chunks)?;
+    }
+
+    #[test]
+    fn the_other_rules_match_reference_on_moving_spots(
+        (case, frames, chunks) in moving_spots(prop_oneof![
+            Just(SelectionRule::Threshold),
+            Just(SelectionRule::SubtractNextDistinct),
+            (1u16..=16).prop_map(|count| SelectionRule::SubtractMean { count }),
+        ])
+    ) {
         brightpix_tests::engine_matches_reference(&case, &frames, &chunks)?;
     }
 }

@@ -452,7 +452,7 @@ pub fn kth_largest(entries: &[Entry], k: usize, scratch: &mut [i32]) -> i32 {
 }
 
 /// As [`kth_largest`], permuting `values` instead of copying them.
-fn kth_largest_in_place(values: &mut [i32], k: usize) -> i32 {
+pub(crate) fn kth_largest_in_place(values: &mut [i32], k: usize) -> i32 {
     let len = values.len();
     if k <= NEAR || len - k < NEAR {
         kth_largest_near_ends(values, k)

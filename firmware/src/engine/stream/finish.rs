@@ -20,7 +20,11 @@ impl Engine<'_, '_> {
             self.finish_prepared(k, sink);
             return;
         }
-        if self.closed_form && window.capacity != 0 && self.finish_in_closed_form(k, sink) {
+        let selects = window.capacity != 0;
+        if self.closed_form && selects && self.finish_in_closed_form(k, sink) {
+            return;
+        }
+        if self.level_closed_form && selects && self.finish_level_rule_in_closed_form(k, sink) {
             return;
         }
         self.finish_ordinary(k, sink);

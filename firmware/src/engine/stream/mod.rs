@@ -29,9 +29,9 @@
 //! - `admission`: what a window admits as it fills (thresholds, the
 //!   kernel's attention stops, room in a full buffer);
 //! - `finish`: a window's end, its cutoff, moments and result;
-//!   `closed_form`: the same in one pass for `subtract-next` without a
-//!   level filter, when the candidates reach the cutoff without low ties
-//!   (almost always); `last_row`: most of that done as the frame's last
+//!   `closed_form`: the same from sums taken in one pass, without a level
+//!   filter, when the candidates reach the cutoff (for `subtract-next`
+//!   almost always, for the other rules most often); `last_row`: most of that done as the frame's last
 //!   row begins.
 
 use super::calibrate::{Calibrator, Steps, WindowBounds, With};
@@ -154,6 +154,8 @@ pub struct Engine<'c, 'm> {
     /// Windows may end in closed form (`closed_form`): `subtract-next` or
     /// `threshold` without a level filter.
     closed_form: bool,
+    /// Likewise, for `subtract-next-distinct` or `subtract-mean`.
+    level_closed_form: bool,
     /// The length of the last push, from which `prepare_row` was set.
     push_len: usize,
     /// Which instance of `push_with` a push takes (the calibration steps
@@ -244,6 +246,11 @@ impl<'c, 'm> Engine<'c, 'm> {
                 config.selection.rule,
                 brightpix_protocol::SelectionRule::SubtractNext
                     | brightpix_protocol::SelectionRule::Threshold
+            ) && config.selection.level_filter.is_none(),
+            level_closed_form: matches!(
+                config.selection.rule,
+                brightpix_protocol::SelectionRule::SubtractNextDistinct
+                    | brightpix_protocol::SelectionRule::SubtractMean { .. }
             ) && config.selection.level_filter.is_none(),
             push_len: 0,
             variant: variant(&config),
