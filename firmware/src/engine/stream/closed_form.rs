@@ -1,7 +1,6 @@
 //! A window's cutoff and moments in closed form, without a level filter.
 //! For `subtract-next`, the windows without low ties whose candidates
-//! reach `v(N+1)`. Without a
-//! level filter the weights are `p - v` over `p > v`, so
+//! reach `v(N+1)`: the weights are `p - v` over `p > v`, so
 //!
 //! `sum (p - v) i = sum p i - v sum i`
 //!

@@ -31,8 +31,8 @@
 //! - `finish`: a window's end, its cutoff, moments and result;
 //!   `closed_form`: the same from sums taken in one pass, without a level
 //!   filter, when the candidates reach the cutoff (for `subtract-next`
-//!   almost always, for the other rules most often); `last_row`: most of that done as the frame's last
-//!   row begins.
+//!   almost always, for the other rules most often); `last_row`: most of
+//!   that done as the frame's last row begins.
 
 use super::calibrate::{Calibrator, Steps, WindowBounds, With};
 use super::centroid::{Centroider, SubapertureResult};
