@@ -14,6 +14,16 @@ pub fn cases_or(default: u32) -> u32 {
         .unwrap_or(default)
 }
 
+/// The differential tests' proptest configuration: `cases` cases, and a
+/// failure shrunk for up to 2,000 steps (their cases are large).
+pub fn differential_config(cases: u32) -> ProptestConfig {
+    ProptestConfig {
+        cases,
+        max_shrink_iters: 2000,
+        ..ProptestConfig::default()
+    }
+}
+
 /// A random configuration: the host's owned configuration type.
 pub type Case = ProcessingConfig;
 

@@ -20,11 +20,7 @@ fn cases() -> u32 {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig {
-        cases: cases(),
-        max_shrink_iters: 2000,
-        ..ProptestConfig::default()
-    })]
+    #![proptest_config(brightpix_tests::differential_config(cases()))]
 
     #[test]
     fn the_sort_peer_is_the_engine((case, frames, _chunks) in case()) {

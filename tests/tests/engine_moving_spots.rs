@@ -106,11 +106,7 @@ fn moving_spots(
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig {
-        cases: cases(),
-        max_shrink_iters: 2000,
-        ..ProptestConfig::default()
-    })]
+    #![proptest_config(brightpix_tests::differential_config(cases()))]
 
     #[test]
     fn engine_matches_reference_on_moving_spots(

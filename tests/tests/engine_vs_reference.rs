@@ -12,11 +12,7 @@ fn cases() -> u32 {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig {
-        cases: cases(),
-        max_shrink_iters: 2000,
-        ..ProptestConfig::default()
-    })]
+    #![proptest_config(brightpix_tests::differential_config(cases()))]
 
     #[test]
     fn engine_matches_reference((case, frames, chunks) in case()) {
@@ -34,11 +30,7 @@ mod invalid_pixel {
     use brightpix_firmware::engine::{Engine, FrameError, SubapertureResult};
 
     proptest! {
-        #![proptest_config(ProptestConfig {
-            cases: cases() / 5,
-            max_shrink_iters: 2000,
-            ..ProptestConfig::default()
-        })]
+        #![proptest_config(brightpix_tests::differential_config(cases() / 5))]
 
         #[test]
         fn engine_stops_at_an_out_of_range_pixel_like_the_reference(

@@ -47,11 +47,7 @@ fn assert_batch_eq(
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig {
-        cases: cases(),
-        max_shrink_iters: 2000,
-        ..ProptestConfig::default()
-    })]
+    #![proptest_config(brightpix_tests::differential_config(cases()))]
 
     /// Frames repeated to make batches of up to 12, cut into two batches at a
     /// random frame, on 1 to 4 threads: the parallel engine gives exactly
