@@ -33,7 +33,7 @@ impl Engine<'_, '_> {
     /// The ordinary end: the cutoff by a selection over the tiers (or a
     /// rescan), the moments by a pass over the candidates kept.
     #[inline(never)]
-    fn finish_ordinary(&mut self, k: usize, sink: &mut impl OutputSink) {
+    pub(super) fn finish_ordinary(&mut self, k: usize, sink: &mut impl OutputSink) {
         self.finished_in_row = true;
         let memory = &mut self.memory;
         let window = &mut memory.open[k];

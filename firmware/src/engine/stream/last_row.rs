@@ -1,8 +1,9 @@
 //! The frame's last row: what is left after the frame's last pixel is the
 //! end of the windows in that row, and that is the latency the camera side
-//! exists to cut. For `subtract-next` without a level filter most of a
-//! window's end is done as the last row begins, from the candidates so far;
-//! after the last pixel only the last row's few candidates are merged in.
+//! exists to cut. For `subtract-next` and `threshold` without a level
+//! filter most of a window's end is done as the last row begins, from the
+//! candidates so far; after the last pixel only the last row's few
+//! candidates are merged in.
 //!
 //! As the last row begins (or as many rows earlier as a push spans, so that
 //! the push holding the frame's last pixel has nothing to prepare: DMA
@@ -28,9 +29,22 @@
 //! The arithmetic is `closed_form`'s. If anything else attends to the
 //! window in the last row (the general path, a kernel stop, a compaction)
 //! the window ends the ordinary way, on its candidates, all still in place.
+//!
+//! `threshold` (DARC's default: `p >= v(N)` kept, weighing `p`) is
+//! prepared the same way with `u = v(N)` of the candidates so far, but
+//! keeps ties with the cutoff, so from then on the window admits
+//! `p >= u`, and the sums are of `F`'s pixels at or above `u`. Fewer than
+//! N of `F` are above `u`; at the end `v(N)` is still `u` unless the last
+//! row's pixels above `u` make N (counted only when it brought some, the
+//! usual case being none), and then every pixel at or above `u` is kept:
+//! the sums plus every pixel of `L`, at a level of 0. When they do make
+//! N, the window ends the ordinary way (`prepared_threshold_end`). A
+//! raised `threshold` window need not be strict (its hint may still be
+//! `v(N)`), so it is prepared once its back tier is gone, with no hint
+//! ties (copies of the hint outside the buffer, which would weigh).
 
 use super::admission::{admit_at, settle_at_hint};
-use super::closed_form::cutoff_and_moments;
+use super::closed_form::{cutoff_and_moments, weigh};
 use super::{Engine, OutputSink};
 use crate::engine::centroid::{self, Moments, SumsAbove};
 use crate::engine::select::{self, Entry, Tiers, WindowRule};
@@ -83,8 +97,10 @@ impl Engine<'_, '_> {
         } else {
             len / width + 2
         };
-        let prepares = self.config.selection.rule == SelectionRule::SubtractNext
-            && self.config.selection.level_filter.is_none()
+        let prepares = matches!(
+            self.config.selection.rule,
+            SelectionRule::SubtractNext | SelectionRule::Threshold
+        ) && self.config.selection.level_filter.is_none()
             && rows.max(1) < height / 2;
         self.prepare_row = if prepares {
             (height - rows.max(1)) as u16
@@ -131,16 +147,31 @@ fn prepare(
     if window.capacity == 0 || window.n >= MOST_N || window.rescan || window.low_ties.count != 0 {
         return;
     }
-    let lowered = if window.strict {
+    let threshold = config.selection.rule == SelectionRule::Threshold;
+    // Raised: `subtract-next`'s windows are then strict, `threshold`'s
+    // have no back tier.
+    let raised = window.strict || (threshold && window.back() == 0);
+    let lowered = if raised {
         None
     } else {
-        match lower_hint_to_cutoff(window, scratch, room) {
+        match lower_hint_to_cutoff(window, scratch, room, threshold) {
             Some(u) => Some(u),
             None => return,
         }
     };
+    // Raised, `subtract-next`'s windows are also strict (`attention`
+    // never); `threshold`'s must have no hint ties (copies of the hint
+    // outside the buffer, which weigh when `v(N)` is the hint) and a front
+    // short enough for the packed coordinate sums of its pixels at or
+    // above `v(N)`, which ties may make more than N.
     if lowered.is_none()
-        && (window.back() != 0 || window.attention != usize::MAX || window.room_left() < room)
+        && (window.back() != 0
+            || window.room_left() < room
+            || if threshold {
+                window.hint_ties.count != 0 || window.front() >= MOST_N as usize
+            } else {
+                window.attention != usize::MAX
+            })
     {
         return;
     }
@@ -153,7 +184,7 @@ fn prepare(
         Some(u) => u,
         None => {
             let rule = WindowRule {
-                rule: SelectionRule::SubtractNext,
+                rule: config.selection.rule,
                 n: window.n,
                 pixels: window.pixels(),
             };
@@ -174,13 +205,19 @@ fn prepare(
             }
         }
     };
-    if u == i32::MAX {
+    // The pixels that can still be kept are those above `t`, and the
+    // window admits only those from now on: for `subtract-next` those
+    // above `u` (the final `v(N+1)` is at least `u`, and ties with it
+    // weigh nothing), for `threshold` those at or above `u` (the final
+    // `v(N)` is at least `u`, and ties with it are kept).
+    let t = if threshold { u.checked_sub(1) } else { Some(u) };
+    let Some(t) = t.filter(|&t| t < i32::MAX) else {
         return;
-    }
-    let above = centroid::sums_above(&entries[..front], u);
+    };
+    let above = centroid::sums_above(&entries[..front], t);
     let block = &mut entries[capacity - BLOCK_END..capacity - 1];
     block[0] = Entry {
-        value: u,
+        value: t,
         position: front as u32,
     };
     block[1] = Entry {
@@ -197,7 +234,7 @@ fn prepare(
         };
     }
     window.attention = PREPARED;
-    admit_at(window, config, max_raw, u + 1);
+    admit_at(window, config, max_raw, t + 1);
 }
 
 /// A window whose front falls short of N + 1 (the spot dimmed or moved
@@ -206,7 +243,11 @@ fn prepare(
 /// `(N + 1 - F)`-th largest of the back), and raised to it as
 /// `raise_to_hint` raises a window to its hint. The back's entries at or
 /// above `u` move to the front's end; the rest go, since the final
-/// `v(N+1)` is at least `u`; admission becomes strict. The window is then
+/// `v(N+1)` is at least `u`; admission becomes strict. For `threshold`
+/// (`threshold` true) the same with `v(N)` and N, and admission not
+/// strict (fewer than N are above `u`, which may stay `v(N)`), and
+/// `None` too if the front would be too long for the prepared sums
+/// ([`MOST_N`]). The window is then
 /// one whose hint was `u` all along (its front every pixel at or above
 /// it), which [`prepare`] takes like any other, and which still ends the
 /// ordinary way if anything attends to it later. Returns `u`, with the
@@ -216,13 +257,20 @@ fn prepare(
 /// which `u` may equal), if N is above [`MOST_LOWERED_N`], if its front
 /// already reaches N + 1 or its back is too short, or if fewer than
 /// `room` entries would be left free.
-fn lower_hint_to_cutoff(window: &mut OpenWindow, scratch: &mut [i32], room: usize) -> Option<i32> {
+fn lower_hint_to_cutoff(
+    window: &mut OpenWindow,
+    scratch: &mut [i32],
+    room: usize,
+    threshold: bool,
+) -> Option<i32> {
     let (front, back, n) = (window.front(), window.back(), window.n as usize);
+    // The rank of the cutoff: `v(N+1)`, or `threshold`'s `v(N)`.
+    let rank = if threshold { n } else { n + 1 };
     if window.hint_ties.count != 0
         || window.low_ties.count != 0
         || n > MOST_LOWERED_N
-        || front > n
-        || n + 1 - front > back
+        || front >= rank
+        || rank - front > back
     {
         return None;
     }
@@ -230,7 +278,7 @@ fn lower_hint_to_cutoff(window: &mut OpenWindow, scratch: &mut [i32], room: usiz
     // SAFETY: the window's live buffer, no other reference to it.
     let entries = unsafe { window.entries() };
     let back_start = capacity - back;
-    let u = select::kth_largest(&entries[back_start..], n + 1 - front, scratch);
+    let u = select::kth_largest(&entries[back_start..], rank - front, scratch);
     // The copies below land in the free space, never on a back entry not
     // yet read: at once if the whole back fits there, else after counting
     // them. Until the front is set they are scratch, so a window left with
@@ -254,7 +302,7 @@ fn lower_hint_to_cutoff(window: &mut OpenWindow, scratch: &mut [i32], room: usiz
             at_u += (e.value == u) as u16;
         }
     }
-    if capacity - to < room {
+    if capacity - to < room || (threshold && to >= MOST_N as usize) {
         return None;
     }
     window.set_front(to);
@@ -264,9 +312,10 @@ fn lower_hint_to_cutoff(window: &mut OpenWindow, scratch: &mut [i32], room: usiz
     // The old front's entries are above the old hint, so above `u`.
     window.at_hint = at_u;
     window.counted = to as u16;
-    // Strict, as after `raise_to_hint`; admission and attention are the
-    // caller's to set.
-    window.strict = true;
+    // As after `raise_to_hint`: strict for `subtract-next`; for
+    // `threshold` not, since fewer than N are above `u`. Admission and
+    // attention are the caller's to set.
+    window.strict = !threshold;
     window.raise = false;
     Some(u)
 }
@@ -278,6 +327,9 @@ impl Engine<'_, '_> {
     /// -> 17.83 instructions a pixel).
     #[inline(never)]
     pub(super) fn finish_prepared(&mut self, k: usize, sink: &mut impl OutputSink) {
+        if self.config.selection.rule == SelectionRule::Threshold {
+            return self.finish_prepared_threshold(k, sink);
+        }
         let window = &self.memory.open[k];
         // SAFETY: the window's buffer (opened with it), no other reference
         // to it alive.
@@ -285,14 +337,30 @@ impl Engine<'_, '_> {
         let (v, moments) = prepared_end(window, entries, self.memory.scratch);
         self.emit(k, v, moments, sink);
     }
+
+    /// [`finish_prepared`](Self::finish_prepared) for `threshold`, or the
+    /// ordinary end when the last row moved `v(N)` above `u`
+    /// ([`prepared_threshold_end`]). Out of line, so that
+    /// `subtract-next`'s end stays as it was.
+    #[inline(never)]
+    fn finish_prepared_threshold(&mut self, k: usize, sink: &mut impl OutputSink) {
+        let window = &self.memory.open[k];
+        // SAFETY: the window's buffer (opened with it), no other reference
+        // to it alive.
+        let entries: &[Entry] = unsafe { window.entries() };
+        match prepared_threshold_end(window, entries) {
+            Some((v, moments)) => self.emit(k, v, moments, sink),
+            None => self.finish_ordinary(k, sink),
+        }
+    }
 }
 
-/// A prepared window's `v(N+1)` and moments (see the module
-/// documentation).
-fn prepared_end(window: &OpenWindow, entries: &[Entry], scratch: &mut [i32]) -> (i32, Moments) {
+/// A prepared window's block: `t`, the front's length at preparation and
+/// the sums of its pixels above `t`.
+#[inline(always)]
+fn prepared_block(window: &OpenWindow, entries: &[Entry]) -> (i32, usize, SumsAbove) {
     let capacity = window.capacity as usize;
     let block = &entries[capacity - BLOCK_END..capacity - 1];
-    let (u, prepared_front) = (block[0].value, block[0].position as usize);
     let sum = |e: Entry| (e.value as u32 as i64) | ((e.position as i64) << 32);
     let sums = SumsAbove {
         sum_p: sum(block[2]),
@@ -301,7 +369,38 @@ fn prepared_end(window: &OpenWindow, entries: &[Entry], scratch: &mut [i32]) -> 
         count: block[1].value as u32,
         sum_ij: block[1].position,
     };
+    (block[0].value, block[0].position as usize, sums)
+}
+
+/// A prepared `subtract-next` window's `v(N+1)` and moments (see the
+/// module documentation).
+fn prepared_end(window: &OpenWindow, entries: &[Entry], scratch: &mut [i32]) -> (i32, Moments) {
+    let (u, prepared_front, sums) = prepared_block(window, entries);
     let before = &entries[..prepared_front];
     let last = &entries[prepared_front..window.front()];
     cutoff_and_moments(u, &sums, before, last, window.n as usize, scratch)
+}
+
+/// A prepared `threshold` window's `v(N)` and moments. At preparation
+/// `u` was `v(N)`, so fewer than N pixels were above it; `v(N)` is still
+/// `u` unless the last row's pixels above it make N (counted only if it
+/// brought some), and then every pixel at or above `u` is kept: the sums,
+/// and every pixel of the last row's (all at or above `u`). `None` if
+/// they make N: the window then ends the ordinary way, on its candidates
+/// (all still in place, every one at or above `u` among them).
+#[inline(always)]
+fn prepared_threshold_end(window: &OpenWindow, entries: &[Entry]) -> Option<(i32, Moments)> {
+    let (t, prepared_front, sums) = prepared_block(window, entries);
+    let last = &entries[prepared_front..window.front()];
+    let u = t + 1;
+    let above = |entries: &[Entry]| entries.iter().filter(|e| e.value > u).count();
+    let last_above = above(last);
+    if last_above > 0 && above(&entries[..prepared_front]) + last_above >= window.n as usize {
+        return None;
+    }
+    let mut moments = sums.moments(0);
+    for e in last {
+        weigh(&mut moments, e, 0, 1);
+    }
+    Some((u, moments))
 }
