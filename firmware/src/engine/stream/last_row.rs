@@ -1,9 +1,9 @@
 //! The frame's last row: what is left after the frame's last pixel is the
 //! end of the windows in that row, and that is the latency the camera side
-//! exists to cut. For `subtract-next` and `threshold` without a level
-//! filter most of a window's end is done as the last row begins, from the
-//! candidates so far; after the last pixel only the last row's few
-//! candidates are merged in.
+//! exists to cut. For `subtract-next`, `threshold` and
+//! `subtract-next-distinct` without a level filter most of a window's end
+//! is done as the last row begins, from the candidates so far; after the
+//! last pixel only the last row's few candidates are merged in.
 //!
 //! As the last row begins (or as many rows earlier as a push spans, so that
 //! the push holding the frame's last pixel has nothing to prepare: DMA
@@ -42,12 +42,22 @@
 //! raised `threshold` window need not be strict (its hint may still be
 //! `v(N)`), so it is prepared once its back tier is gone, with no hint
 //! ties (copies of the hint outside the buffer, which would weigh).
+//!
+//! `subtract-next-distinct` (DARC's subtract mode: `p >= v(N)` kept,
+//! weighing `p - b`, `b` the largest value below `v(N)`) takes `u = v(N)`
+//! and `b` of its candidates so far when `b` is at or above the hint, so
+//! that its back tier can go ([`prepare_distinct`]); it then admits
+//! `p > b` (the final level is at least `b`). At the end, `v(N)` is still
+//! `u` unless the last row's pixels above `u` make N; the level is the
+//! largest of `b` and the last row's values below `u`, and the sums and
+//! the last row's pixels at or above `u` weigh at it
+//! (`prepared_distinct_end`); else the ordinary end.
 
 use super::admission::{admit_at, settle_at_hint};
 use super::closed_form::{cutoff_and_moments, weigh};
 use super::{Engine, OutputSink};
 use crate::engine::centroid::{self, Moments, SumsAbove};
-use crate::engine::select::{self, Entry, Tiers, WindowRule};
+use crate::engine::select::{self, Cut, Entry, Tiers, WindowRule};
 use crate::engine::window::OpenWindow;
 use brightpix_protocol::SelectionRule;
 
@@ -64,6 +74,10 @@ const BLOCK: usize = 5;
 /// Below this N the coordinate sums of the pixels above `u` (at most N of
 /// them, each coordinate below 64) fit 16 bits each, packed in one word.
 const MOST_N: u16 = 1024;
+
+/// For `subtract-next-distinct`, the entry before the block holds the
+/// level of the candidates at preparation.
+const LEVEL: usize = 1;
 
 /// Where the block starts, in entries before the buffer's end: one entry
 /// is left free after it, since the row kernel's portable twin stores each
@@ -99,7 +113,9 @@ impl Engine<'_, '_> {
         };
         let prepares = matches!(
             self.config.selection.rule,
-            SelectionRule::SubtractNext | SelectionRule::Threshold
+            SelectionRule::SubtractNext
+                | SelectionRule::Threshold
+                | SelectionRule::SubtractNextDistinct
         ) && self.config.selection.level_filter.is_none()
             && rows.max(1) < height / 2;
         self.prepare_row = if prepares {
@@ -143,6 +159,9 @@ fn prepare(
     scratch: &mut [i32],
     rows_left: usize,
 ) {
+    if config.selection.rule == SelectionRule::SubtractNextDistinct {
+        return prepare_distinct(window, config, max_raw, scratch, rows_left);
+    }
     let room = rows_left * window.width as usize + BLOCK_END;
     if window.capacity == 0 || window.n >= MOST_N || window.rescan || window.low_ties.count != 0 {
         return;
@@ -214,6 +233,15 @@ fn prepare(
     let Some(t) = t.filter(|&t| t < i32::MAX) else {
         return;
     };
+    write_block(entries, capacity, t, front);
+    window.attention = PREPARED;
+    admit_at(window, config, max_raw, t + 1);
+}
+
+/// The block near the end of a window's buffer of `capacity` entries:
+/// `t`, the front's length (`front`) and the sums of its pixels above `t`.
+#[inline(always)]
+fn write_block(entries: &mut [Entry], capacity: usize, t: i32, front: usize) {
     let above = centroid::sums_above(&entries[..front], t);
     let block = &mut entries[capacity - BLOCK_END..capacity - 1];
     block[0] = Entry {
@@ -233,8 +261,72 @@ fn prepare(
             position: (sum >> 32) as u32,
         };
     }
+}
+
+/// [`prepare`] for `subtract-next-distinct` (DARC's subtract mode: `p >=
+/// v(N)` kept, weighing `p - b`, `b` the largest value below `v(N)`): `u
+/// = v(N)` and `b` of the candidates so far, if `b` is at or above the
+/// hint (so the back tier, below it, can go, as `raise_to_hint` would drop
+/// it), with no hint or low ties. The final `v(N)` is at least `u` and
+/// the final level at least `b`, so from then on the window admits `p >
+/// b`; the block holds the sums of the front's pixels at or above `u`, and
+/// the entry before it `b`.
+#[inline(always)]
+fn prepare_distinct(
+    window: &mut OpenWindow,
+    config: &brightpix_protocol::Config<'_>,
+    max_raw: u16,
+    scratch: &mut [i32],
+    rows_left: usize,
+) {
+    let room = rows_left * window.width as usize + BLOCK_END + LEVEL;
+    if window.capacity == 0
+        || window.n >= MOST_N
+        || window.rescan
+        || window.low_ties.count != 0
+        || window.hint_ties.count != 0
+        || window.front() >= MOST_N as usize
+        || window.room_left() < room
+    {
+        return;
+    }
+    settle_at_hint(window);
+    let (front, back) = (window.front(), window.back());
+    let capacity = window.capacity as usize;
+    // SAFETY: the window's live buffer, no other reference to it.
+    let entries = unsafe { window.entries() };
+    let rule = WindowRule {
+        rule: SelectionRule::SubtractNextDistinct,
+        n: window.n,
+        pixels: window.pixels(),
+    };
+    let mut tiers = Tiers {
+        front: &entries[..front],
+        front_at_hint: window.at_hint,
+        hint: window.hint,
+        hint_ties: 0,
+        back: &entries[capacity - back..capacity],
+        low: window.low,
+        low_ties: 0,
+        complete: false,
+        scratch,
+    };
+    let (u, b) = match select::cut(&rule, &mut tiers) {
+        Ok(Cut {
+            bound: u,
+            level: Some(b),
+            ..
+        }) if b >= window.hint => (u, b),
+        _ => return,
+    };
+    // `u > b`, so `u - 1` does not overflow, nor `b + 1`.
+    write_block(entries, capacity, u - 1, front);
+    entries[capacity - BLOCK_END - LEVEL].value = b;
+    window.set_back(0);
+    window.low = window.hint;
+    window.strict = true;
     window.attention = PREPARED;
-    admit_at(window, config, max_raw, t + 1);
+    admit_at(window, config, max_raw, b + 1);
 }
 
 /// A window whose front falls short of N + 1 (the spot dimmed or moved
@@ -327,8 +419,8 @@ impl Engine<'_, '_> {
     /// -> 17.83 instructions a pixel).
     #[inline(never)]
     pub(super) fn finish_prepared(&mut self, k: usize, sink: &mut impl OutputSink) {
-        if self.config.selection.rule == SelectionRule::Threshold {
-            return self.finish_prepared_threshold(k, sink);
+        if self.config.selection.rule != SelectionRule::SubtractNext {
+            return self.finish_prepared_other(k, sink);
         }
         let window = &self.memory.open[k];
         // SAFETY: the window's buffer (opened with it), no other reference
@@ -338,17 +430,23 @@ impl Engine<'_, '_> {
         self.emit(k, v, moments, sink);
     }
 
-    /// [`finish_prepared`](Self::finish_prepared) for `threshold`, or the
-    /// ordinary end when the last row moved `v(N)` above `u`
-    /// ([`prepared_threshold_end`]). Out of line, so that
-    /// `subtract-next`'s end stays as it was.
+    /// [`finish_prepared`](Self::finish_prepared) for `threshold` and
+    /// `subtract-next-distinct`, or the ordinary end when the last row
+    /// moved `v(N)` above `u` ([`prepared_threshold_end`],
+    /// [`prepared_distinct_end`]). Out of line, so that `subtract-next`'s
+    /// end stays as it was.
     #[inline(never)]
-    fn finish_prepared_threshold(&mut self, k: usize, sink: &mut impl OutputSink) {
+    fn finish_prepared_other(&mut self, k: usize, sink: &mut impl OutputSink) {
         let window = &self.memory.open[k];
         // SAFETY: the window's buffer (opened with it), no other reference
         // to it alive.
         let entries: &[Entry] = unsafe { window.entries() };
-        match prepared_threshold_end(window, entries) {
+        let end = if self.config.selection.rule == SelectionRule::Threshold {
+            prepared_threshold_end(window, entries)
+        } else {
+            prepared_distinct_end(window, entries)
+        };
+        match end {
             Some((v, moments)) => self.emit(k, v, moments, sink),
             None => self.finish_ordinary(k, sink),
         }
@@ -381,15 +479,17 @@ fn prepared_end(window: &OpenWindow, entries: &[Entry], scratch: &mut [i32]) -> 
     cutoff_and_moments(u, &sums, before, last, window.n as usize, scratch)
 }
 
-/// A prepared `threshold` window's `v(N)` and moments. At preparation
-/// `u` was `v(N)`, so fewer than N pixels were above it; `v(N)` is still
-/// `u` unless the last row's pixels above it make N (counted only if it
-/// brought some), and then every pixel at or above `u` is kept: the sums,
-/// and every pixel of the last row's (all at or above `u`). `None` if
-/// they make N: the window then ends the ordinary way, on its candidates
-/// (all still in place, every one at or above `u` among them).
+/// For a window prepared with `u = v(N)` (`threshold`,
+/// `subtract-next-distinct`): `u`, the last row's entries and the block's
+/// sums if `v(N)` is still `u`, i.e. the last row's pixels above `u` do
+/// not make N (fewer than N were above it at preparation; counted only
+/// when the last row brought some). `None` if they do: the window then
+/// ends the ordinary way, on its candidates (all still in place).
 #[inline(always)]
-fn prepared_threshold_end(window: &OpenWindow, entries: &[Entry]) -> Option<(i32, Moments)> {
+fn cutoff_stays<'e>(
+    window: &OpenWindow,
+    entries: &'e [Entry],
+) -> Option<(i32, &'e [Entry], SumsAbove)> {
     let (t, prepared_front, sums) = prepared_block(window, entries);
     let last = &entries[prepared_front..window.front()];
     let u = t + 1;
@@ -398,9 +498,40 @@ fn prepared_threshold_end(window: &OpenWindow, entries: &[Entry]) -> Option<(i32
     if last_above > 0 && above(&entries[..prepared_front]) + last_above >= window.n as usize {
         return None;
     }
+    Some((u, last, sums))
+}
+
+/// A prepared `threshold` window's `v(N)` and moments, when `v(N)` is
+/// still `u` ([`cutoff_stays`]): every pixel at or above `u` is kept,
+/// weighing `p`: the sums, and every pixel of the last row's (all at or
+/// above `u`).
+#[inline(always)]
+fn prepared_threshold_end(window: &OpenWindow, entries: &[Entry]) -> Option<(i32, Moments)> {
+    let (u, last, sums) = cutoff_stays(window, entries)?;
     let mut moments = sums.moments(0);
     for e in last {
         weigh(&mut moments, e, 0, 1);
     }
     Some((u, moments))
+}
+
+/// A prepared `subtract-next-distinct` window's level (the seed's cutoff)
+/// and moments, when `v(N)` is still `u` ([`cutoff_stays`]): the level is
+/// the largest of `b` (the candidates' at preparation) and the last row's
+/// values below `u` (all above `b`), and the sums and the last row's
+/// pixels at or above `u` weigh at it.
+#[inline(always)]
+fn prepared_distinct_end(window: &OpenWindow, entries: &[Entry]) -> Option<(i32, Moments)> {
+    let (u, last, sums) = cutoff_stays(window, entries)?;
+    let b = entries[window.capacity as usize - BLOCK_END - LEVEL].value;
+    let level = last
+        .iter()
+        .map(|e| e.value)
+        .filter(|&p| p < u)
+        .fold(b, i32::max);
+    let mut moments = sums.moments(level);
+    for e in last.iter().filter(|e| e.value >= u) {
+        weigh(&mut moments, e, level as i64, 1);
+    }
+    Some((level, moments))
 }
