@@ -44,14 +44,18 @@
 //! ties (copies of the hint outside the buffer, which would weigh).
 //!
 //! `subtract-next-distinct` (DARC's subtract mode: `p >= v(N)` kept,
-//! weighing `p - b`, `b` the largest value below `v(N)`) takes `u = v(N)`
-//! and `b` of its candidates so far when `b` is at or above the hint, so
-//! that its back tier can go ([`prepare_distinct`]); it then admits
-//! `p > b` (the final level is at least `b`). At the end, `v(N)` is still
-//! `u` unless the last row's pixels above `u` make N; the level is the
-//! largest of `b` and the last row's values below `u`, and the sums and
-//! the last row's pixels at or above `u` weigh at it
-//! (`prepared_distinct_end`); else the ordinary end.
+//! weighing `p - b`, `b` the largest value below `v(N)`) and
+//! `subtract-mean` (weighing `p` less the floored mean of the M largest
+//! below `v(N)`) take `u = v(N)`, the level and `w`, the smallest value
+//! that sets it (`b`, or the M-th largest below `u`), of their candidates
+//! so far when `w` is at or above the hint, so that the back tier can go
+//! ([`prepare_level_rule`]); the window then admits `p > w` (nothing at or
+//! below `w` can change the level). At the end, `v(N)` is still `u` unless
+//! the last row's pixels above `u` make N, and the level stays unless the
+//! last row brought values between `w` and `u`: for distinct the largest
+//! of them is then the level, for mean the window ends the ordinary way,
+//! as it does when `v(N)` moved. The sums and the last row's pixels at or
+//! above `u` weigh at the level (`prepared_level_end`).
 
 use super::admission::{admit_at, settle_at_hint};
 use super::closed_form::{cutoff_and_moments, weigh};
@@ -75,9 +79,20 @@ const BLOCK: usize = 5;
 /// them, each coordinate below 64) fit 16 bits each, packed in one word.
 const MOST_N: u16 = 1024;
 
-/// For `subtract-next-distinct`, the entry before the block holds the
-/// level of the candidates at preparation.
+/// For `subtract-next-distinct` and `subtract-mean`, the entry before the
+/// block holds the candidates' level at preparation and the smallest value
+/// that set it (`w`).
 const LEVEL: usize = 1;
+
+/// Whether a rule's last row is prepared with its level
+/// ([`prepare_level_rule`]): `subtract-next-distinct` and `subtract-mean`.
+#[inline(always)]
+fn level_rule(rule: SelectionRule) -> bool {
+    matches!(
+        rule,
+        SelectionRule::SubtractNextDistinct | SelectionRule::SubtractMean { .. }
+    )
+}
 
 /// Where the block starts, in entries before the buffer's end: one entry
 /// is left free after it, since the row kernel's portable twin stores each
@@ -111,12 +126,11 @@ impl Engine<'_, '_> {
         } else {
             len / width + 2
         };
-        let prepares = matches!(
-            self.config.selection.rule,
-            SelectionRule::SubtractNext
-                | SelectionRule::Threshold
-                | SelectionRule::SubtractNextDistinct
-        ) && self.config.selection.level_filter.is_none()
+        let rule = self.config.selection.rule;
+        let prepared_rule = matches!(rule, SelectionRule::SubtractNext | SelectionRule::Threshold)
+            || level_rule(rule);
+        let prepares = prepared_rule
+            && self.config.selection.level_filter.is_none()
             && rows.max(1) < height / 2;
         self.prepare_row = if prepares {
             (height - rows.max(1)) as u16
@@ -159,8 +173,8 @@ fn prepare(
     scratch: &mut [i32],
     rows_left: usize,
 ) {
-    if config.selection.rule == SelectionRule::SubtractNextDistinct {
-        return prepare_distinct(window, config, max_raw, scratch, rows_left);
+    if level_rule(config.selection.rule) {
+        return prepare_level_rule(window, config, max_raw, scratch, rows_left);
     }
     let room = rows_left * window.width as usize + BLOCK_END;
     if window.capacity == 0 || window.n >= MOST_N || window.rescan || window.low_ties.count != 0 {
@@ -264,15 +278,18 @@ fn write_block(entries: &mut [Entry], capacity: usize, t: i32, front: usize) {
 }
 
 /// [`prepare`] for `subtract-next-distinct` (DARC's subtract mode: `p >=
-/// v(N)` kept, weighing `p - b`, `b` the largest value below `v(N)`): `u
-/// = v(N)` and `b` of the candidates so far, if `b` is at or above the
-/// hint (so the back tier, below it, can go, as `raise_to_hint` would drop
-/// it), with no hint or low ties. The final `v(N)` is at least `u` and
-/// the final level at least `b`, so from then on the window admits `p >
-/// b`; the block holds the sums of the front's pixels at or above `u`, and
-/// the entry before it `b`.
+/// v(N)` kept, weighing `p - b`, `b` the largest value below `v(N)`) and
+/// `subtract-mean` (the floored mean of the M largest below `v(N)`):
+/// `u = v(N)`, the level and `w`, the smallest of the values below `u`
+/// that set it (`b` itself, or the M-th largest), of the candidates so
+/// far, if `w` is at or above the hint (so the back tier, below it, can
+/// go, as `raise_to_hint` would drop it), with no hint or low ties. The
+/// final `v(N)` is at least `u`, and values at or below `w` can no longer
+/// change the level, so from then on the window admits `p > w`; the block
+/// holds the sums of the front's pixels at or above `u`, and the entry
+/// before it the level and `w`.
 #[inline(always)]
-fn prepare_distinct(
+fn prepare_level_rule(
     window: &mut OpenWindow,
     config: &brightpix_protocol::Config<'_>,
     max_raw: u16,
@@ -296,7 +313,7 @@ fn prepare_distinct(
     // SAFETY: the window's live buffer, no other reference to it.
     let entries = unsafe { window.entries() };
     let rule = WindowRule {
-        rule: SelectionRule::SubtractNextDistinct,
+        rule: config.selection.rule,
         n: window.n,
         pixels: window.pixels(),
     };
@@ -311,22 +328,28 @@ fn prepare_distinct(
         complete: false,
         scratch,
     };
-    let (u, b) = match select::cut(&rule, &mut tiers) {
+    // Of these rules, a cut with the candidates incomplete is `Ok` only
+    // with all the values that set its level (its `cutoff` the smallest).
+    let (u, level, w) = match select::cut(&rule, &mut tiers) {
         Ok(Cut {
             bound: u,
-            level: Some(b),
+            level: Some(level),
+            cutoff: w,
             ..
-        }) if b >= window.hint => (u, b),
+        }) if w >= window.hint => (u, level, w),
         _ => return,
     };
-    // `u > b`, so `u - 1` does not overflow, nor `b + 1`.
+    // `u > w`, so `u - 1` does not overflow, nor `w + 1`.
     write_block(entries, capacity, u - 1, front);
-    entries[capacity - BLOCK_END - LEVEL].value = b;
+    entries[capacity - BLOCK_END - LEVEL] = Entry {
+        value: level,
+        position: w as u32,
+    };
     window.set_back(0);
     window.low = window.hint;
     window.strict = true;
     window.attention = PREPARED;
-    admit_at(window, config, max_raw, b + 1);
+    admit_at(window, config, max_raw, w + 1);
 }
 
 /// A window whose front falls short of N + 1 (the spot dimmed or moved
@@ -430,10 +453,10 @@ impl Engine<'_, '_> {
         self.emit(k, v, moments, sink);
     }
 
-    /// [`finish_prepared`](Self::finish_prepared) for `threshold` and
-    /// `subtract-next-distinct`, or the ordinary end when the last row
-    /// moved `v(N)` above `u` ([`prepared_threshold_end`],
-    /// [`prepared_distinct_end`]). Out of line, so that `subtract-next`'s
+    /// [`finish_prepared`](Self::finish_prepared) for `threshold`,
+    /// `subtract-next-distinct` and `subtract-mean`, or the ordinary end
+    /// when the last row moved `v(N)` above `u` ([`prepared_threshold_end`],
+    /// [`prepared_level_end`]). Out of line, so that `subtract-next`'s
     /// end stays as it was.
     #[inline(never)]
     fn finish_prepared_other(&mut self, k: usize, sink: &mut impl OutputSink) {
@@ -441,10 +464,11 @@ impl Engine<'_, '_> {
         // SAFETY: the window's buffer (opened with it), no other reference
         // to it alive.
         let entries: &[Entry] = unsafe { window.entries() };
-        let end = if self.config.selection.rule == SelectionRule::Threshold {
-            prepared_threshold_end(window, entries)
-        } else {
-            prepared_distinct_end(window, entries)
+        let end = match self.config.selection.rule {
+            SelectionRule::Threshold => prepared_threshold_end(window, entries),
+            rule => {
+                prepared_level_end(window, entries, rule == SelectionRule::SubtractNextDistinct)
+            }
         };
         match end {
             Some((v, moments)) => self.emit(k, v, moments, sink),
@@ -515,23 +539,33 @@ fn prepared_threshold_end(window: &OpenWindow, entries: &[Entry]) -> Option<(i32
     Some((u, moments))
 }
 
-/// A prepared `subtract-next-distinct` window's level (the seed's cutoff)
-/// and moments, when `v(N)` is still `u` ([`cutoff_stays`]): the level is
-/// the largest of `b` (the candidates' at preparation) and the last row's
-/// values below `u` (all above `b`), and the sums and the last row's
-/// pixels at or above `u` weigh at it.
+/// A prepared `subtract-next-distinct` or `subtract-mean` window's
+/// cutoff for the seed and moments, when `v(N)` is still `u`
+/// ([`cutoff_stays`]) and the level is known: the last row's values
+/// between `w` and `u` are the only ones that can change it. For
+/// distinct the largest of them is the level if above it; for mean any
+/// of them sends the window to the ordinary end (`None`). The sums and
+/// the last row's pixels at or above `u` weigh at the level.
 #[inline(always)]
-fn prepared_distinct_end(window: &OpenWindow, entries: &[Entry]) -> Option<(i32, Moments)> {
+fn prepared_level_end(
+    window: &OpenWindow,
+    entries: &[Entry],
+    distinct: bool,
+) -> Option<(i32, Moments)> {
     let (u, last, sums) = cutoff_stays(window, entries)?;
-    let b = entries[window.capacity as usize - BLOCK_END - LEVEL].value;
-    let level = last
-        .iter()
-        .map(|e| e.value)
-        .filter(|&p| p < u)
-        .fold(b, i32::max);
+    let kept = entries[window.capacity as usize - BLOCK_END - LEVEL];
+    let (mut level, w) = (kept.value, kept.position as i32);
+    let mut cutoff = w;
+    for e in last.iter().filter(|e| e.value > w && e.value < u) {
+        if !distinct {
+            return None;
+        }
+        level = level.max(e.value);
+        cutoff = level;
+    }
     let mut moments = sums.moments(level);
     for e in last.iter().filter(|e| e.value >= u) {
         weigh(&mut moments, e, level as i64, 1);
     }
-    Some((level, moments))
+    Some((cutoff, moments))
 }
