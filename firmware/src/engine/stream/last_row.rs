@@ -1,9 +1,9 @@
 //! The frame's last row: what is left after the frame's last pixel is the
 //! end of the windows in that row, and that is the latency the camera side
-//! exists to cut. For `subtract-next`, `threshold` and
-//! `subtract-next-distinct` without a level filter most of a window's end
-//! is done as the last row begins, from the candidates so far; after the
-//! last pixel only the last row's few candidates are merged in.
+//! exists to cut. For every rule without a level filter most of a
+//! window's end is done as the last row begins, from the candidates so
+//! far; after the last pixel only the last row's few candidates are merged
+//! in. `subtract-next` first, then what the other rules do differently.
 //!
 //! As the last row begins (or as many rows earlier as a push spans, so that
 //! the push holding the frame's last pixel has nothing to prepare: DMA
@@ -504,7 +504,8 @@ fn prepared_end(window: &OpenWindow, entries: &[Entry], scratch: &mut [i32]) -> 
 }
 
 /// For a window prepared with `u = v(N)` (`threshold`,
-/// `subtract-next-distinct`): `u`, the last row's entries and the block's
+/// `subtract-next-distinct`, `subtract-mean`): `u`, the last row's
+/// entries and the block's
 /// sums if `v(N)` is still `u`, i.e. the last row's pixels above `u` do
 /// not make N (fewer than N were above it at preparation; counted only
 /// when the last row brought some). `None` if they do: the window then

@@ -149,8 +149,8 @@ pub struct Engine<'c, 'm> {
     /// start of this row (`last_row`), `event_row` stopping there too:
     /// the last row, or earlier by as many rows as a push spans, so that
     /// the push holding the frame's last pixel does not prepare them;
-    /// `u16::MAX`: never (`subtract-mean`, a level filter, or pushes of
-    /// half a frame or more).
+    /// `u16::MAX`: never (a level filter, or pushes of half a frame or
+    /// more).
     prepare_row: u16,
     /// Windows may end in closed form (`closed_form`): `subtract-next` or
     /// `threshold` without a level filter.
