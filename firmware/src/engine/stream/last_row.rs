@@ -61,7 +61,7 @@ use super::admission::{admit_at, settle_at_hint};
 use super::closed_form::{cutoff_and_moments, weigh};
 use super::{Engine, OutputSink};
 use crate::engine::centroid::{self, Moments, SumsAbove};
-use crate::engine::select::{self, Cut, Entry, Tiers, WindowRule};
+use crate::engine::select::{self, Cut, Entry, Tiers, TooShallow, WindowRule};
 use crate::engine::window::OpenWindow;
 use brightpix_protocol::SelectionRule;
 
@@ -215,28 +215,10 @@ fn prepare(
     let entries = unsafe { window.entries() };
     let u = match lowered {
         Some(u) => u,
-        None => {
-            let rule = WindowRule {
-                rule: config.selection.rule,
-                n: window.n,
-                pixels: window.pixels(),
-            };
-            let mut tiers = Tiers {
-                front: &entries[..front],
-                front_at_hint: window.at_hint,
-                hint: window.hint,
-                hint_ties: window.hint_ties.count,
-                back: &[],
-                low: window.low,
-                low_ties: 0,
-                complete: false,
-                scratch,
-            };
-            match select::cut(&rule, &mut tiers) {
-                Ok(cut) if cut.cutoff >= window.hint => cut.cutoff,
-                _ => return,
-            }
-        }
+        None => match cut_so_far(window, config.selection.rule, entries, scratch) {
+            Ok(cut) if cut.cutoff >= window.hint => cut.cutoff,
+            _ => return,
+        },
     };
     // The pixels that can still be kept are those above `t`, and the
     // window admits only those from now on: for `subtract-next` those
@@ -250,6 +232,36 @@ fn prepare(
     write_block(entries, capacity, t, front);
     window.attention = PREPARED;
     admit_at(window, config, max_raw, t + 1);
+}
+
+/// `rule`'s cut of `window`'s candidates so far (its buffer `entries`,
+/// its hint's copies counted), which holds for the whole window only if
+/// `Ok`.
+#[inline(always)]
+fn cut_so_far(
+    window: &OpenWindow,
+    rule: SelectionRule,
+    entries: &[Entry],
+    scratch: &mut [i32],
+) -> Result<Cut, TooShallow> {
+    let (front, back, capacity) = (window.front(), window.back(), window.capacity as usize);
+    let rule = WindowRule {
+        rule,
+        n: window.n,
+        pixels: window.pixels(),
+    };
+    let mut tiers = Tiers {
+        front: &entries[..front],
+        front_at_hint: window.at_hint,
+        hint: window.hint,
+        hint_ties: window.hint_ties.count,
+        back: &entries[capacity - back..capacity],
+        low: window.low,
+        low_ties: window.low_ties.count,
+        complete: false,
+        scratch,
+    };
+    select::cut(&rule, &mut tiers)
 }
 
 /// The block near the end of a window's buffer of `capacity` entries:
@@ -308,29 +320,13 @@ fn prepare_level_rule(
         return;
     }
     settle_at_hint(window);
-    let (front, back) = (window.front(), window.back());
+    let front = window.front();
     let capacity = window.capacity as usize;
     // SAFETY: the window's live buffer, no other reference to it.
     let entries = unsafe { window.entries() };
-    let rule = WindowRule {
-        rule: config.selection.rule,
-        n: window.n,
-        pixels: window.pixels(),
-    };
-    let mut tiers = Tiers {
-        front: &entries[..front],
-        front_at_hint: window.at_hint,
-        hint: window.hint,
-        hint_ties: 0,
-        back: &entries[capacity - back..capacity],
-        low: window.low,
-        low_ties: 0,
-        complete: false,
-        scratch,
-    };
     // Of these rules, a cut with the candidates incomplete is `Ok` only
     // with all the values that set its level (its `cutoff` the smallest).
-    let (u, level, w) = match select::cut(&rule, &mut tiers) {
+    let (u, level, w) = match cut_so_far(window, config.selection.rule, entries, scratch) {
         Ok(Cut {
             bound: u,
             level: Some(level),
