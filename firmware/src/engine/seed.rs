@@ -16,7 +16,7 @@ pub struct Seed {
     /// as `previous ^ NONE`, so that the reset state is all zero bits.
     biased: i32,
     /// The largest recent change of the cutoff between frames, decaying by
-    /// 1/16 a frame, in 1/16 of a calibrated unit.
+    /// 1/32 a frame (`DECAY_BITS`), in 1/16 of a calibrated unit.
     spread: i32,
 }
 
