@@ -39,7 +39,7 @@
 //!
 //! Here: the loop, the session and the requests; in `upload`, a
 //! configuration's upload into the staging slot; in `pixels`, frames into
-//! the engine and results back.
+//! the engine and results back; in `bench`, the bench request.
 
 pub mod bench;
 mod capture;
@@ -54,9 +54,9 @@ pub mod watchdog;
 use core::convert::Infallible;
 
 use brightpix_protocol::wire::{
-    decode_body, encode, hello_in_body, unstuff, Ack, BenchFault, Capabilities, DeviceError,
-    DeviceMessage, FrameFault, FrameReader, Health, Hello, HelloReply, HostMessage, MessageKind,
-    Received, ResetReason, Status, WireError, ALL_WORKLOADS, MAX_BOARD_NAME_LEN, MAX_FRAME_LEN,
+    decode_body, encode, hello_in_body, unstuff, Ack, Capabilities, DeviceError, DeviceMessage,
+    FrameFault, FrameReader, Health, Hello, HelloReply, HostMessage, MessageKind, Received,
+    ResetReason, Status, WireError, MAX_BOARD_NAME_LEN, MAX_FRAME_LEN,
 };
 use embassy_futures::select::{select, select3, Either, Either3};
 use embedded_io_async::{Read, Write};
@@ -692,81 +692,6 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
                 upload.id
             );
         }
-    }
-
-    /// A bench request, checked before anything changes.
-    fn check_bench(&self, workload: &str, frames: u32) -> Result<BenchPlan, BenchFault> {
-        let Some(runner) = self.bench.as_deref() else {
-            return Err(BenchFault::NotSupported);
-        };
-        if self.frame.is_some() || self.capture.is_some() {
-            return Err(BenchFault::Streaming);
-        }
-        if self.upload.is_some() {
-            return Err(BenchFault::UploadInProgress);
-        }
-        let max = runner.max_frames();
-        if frames > max {
-            return Err(BenchFault::TooManyFrames { max });
-        }
-        let all = runner.workloads();
-        if workload == ALL_WORKLOADS {
-            return Ok(BenchPlan {
-                first: 0,
-                count: all,
-                frames,
-            });
-        }
-        match (0..all).find(|&k| runner.name(k) == workload) {
-            Some(first) => Ok(BenchPlan {
-                first,
-                count: 1,
-                frames,
-            }),
-            None => Err(BenchFault::UnknownWorkload),
-        }
-    }
-
-    /// Runs a checked bench in the engine's memory and the staging slot's
-    /// tables, one report per workload, then `Ack(BenchDone)`. The engine
-    /// is built afresh afterwards.
-    async fn bench(
-        &mut self,
-        plan: BenchPlan,
-        memory: &mut EngineMemory<'_>,
-        staging: &mut ConfigSlot<'_>,
-    ) -> LinkResult<(), T::Error> {
-        self.fresh_engine = true;
-        // Its tables are about to be overwritten: never activate them.
-        staging.header = None;
-        log_info!(
-            "device: bench of {=usize} workloads, {=u32} frames each (0: their own)",
-            plan.count,
-            plan.frames
-        );
-        for index in plan.first..plan.first + plan.count {
-            self.watchdog.feed();
-            let Some(runner) = self.bench.as_deref_mut() else {
-                break;
-            };
-            let report = runner.run(
-                index,
-                plan.frames,
-                BenchMemory {
-                    engine: reborrow(memory),
-                    windows: staging.windows,
-                    background: staging.background,
-                    gain: staging.gain,
-                },
-            );
-            self.watchdog.feed();
-            self.send(&DeviceMessage::BenchReport(report)).await?;
-            self.flush_link().await?;
-        }
-        self.send(&DeviceMessage::Ack(Ack::BenchDone {
-            workloads: saturate(plan.count),
-        }))
-        .await
     }
 
     // --- output ---------------------------------------------------------------
