@@ -2,8 +2,9 @@
 //! r0 test and temporary, r1 r2 the word pair, r3 a pixel's value, r4
 //! temporary (background, position), r5 the pixel pointer, r6 the
 //! segment's end, r7 the lanes, r8 `admit`, r9 the window's position
-//! constant, r10 `front_end`, r11 `back_start`, r12 `bg_delta`, lr the
-//! window. On the stack: the row, the windows' end, `position_delta`,
+//! constant, r10 `front_end`, r11 `back_start`, r12 `bg_delta` (without
+//! a background map, the window's hint in the hot loop), lr the window. On
+//! the stack: the row, the windows' end, `position_delta`,
 //! `max_raw`, the arguments.
 //!
 //! A segment is scanned by the *cold* loop until some pixel passes the
@@ -60,17 +61,41 @@ macro_rules! position {
     };
 }
 
+/// r3 (calibrated) against the window's hint: with a background map from
+/// the window (r12 holds `bg_delta`), without one from r12, where the hot
+/// loop's entry put it (`hint_to_r12`).
+macro_rules! against_hint {
+    (true) => {
+        concat!("ldr r4, [lr, #{hint}]\n", "cmp r3, r4\n")
+    };
+    (false) => {
+        "cmp r3, r12\n"
+    };
+}
+
+/// Without a background map r12 is free: a segment's hint goes there as
+/// its hot loop begins (its first pixel past the lanes), so that an
+/// admission does not load it (one instruction a segment with candidates
+/// instead of one a candidate).
+macro_rules! hint_to_r12 {
+    (true) => {
+        ""
+    };
+    (false) => {
+        "ldr r12, [lr, #{hint}]\n"
+    };
+}
+
 /// The value in r3 (calibrated) admitted if `>= admit`, to its tier;
 /// else on to `$skip`.
 macro_rules! admit {
-    ($lane:tt, $skip:literal) => {
+    ($bg:tt, $lane:tt, $skip:literal) => {
         concat!(
             "cmp r3, r8\n",
             "blt ",
             $skip,
             "\n",
-            "ldr r4, [lr, #{hint}]\n",
-            "cmp r3, r4\n",
+            against_hint!($bg),
             position!($lane),
             "ite ge\n",
             "strdge r3, r4, [r10], #8\n",
@@ -141,8 +166,10 @@ macro_rules! kernel {
                 "ldr r2, [r5], #4",
                 "b 4b",
                 "31:",
+                hint_to_r12!($bg),
                 "b 6f",
                 "32:",
+                hint_to_r12!($bg),
                 "b 5f",
                 // The hot loop (its exit after the handlers): the
                 // second word's handler comes first, so that both
@@ -166,7 +193,7 @@ macro_rules! kernel {
                 "uxth r3, r2",
                 check!($check, "92f"),
                 calibrate!($bg, 8),
-                admit!(2, "51f"),
+                admit!($bg, 2, "51f"),
                 "51:",
                 "uqsub16 r0, r2, r7",
                 "cmp r0, #0x10000",
@@ -179,7 +206,7 @@ macro_rules! kernel {
                 "uxth r3, r1",
                 check!($check, "90f"),
                 calibrate!($bg, 0),
-                admit!(0, "61f"),
+                admit!($bg, 0, "61f"),
                 "61:",
                 "uqsub16 r0, r1, r7",
                 "cmp r0, #0x10000",
@@ -187,13 +214,13 @@ macro_rules! kernel {
                 "lsrs r3, r1, #16",
                 check!($check, "91f"),
                 calibrate!($bg, 4),
-                admit!(1, "14b"),
+                admit!($bg, 1, "14b"),
                 "b 14b",
                 "52:",
                 "lsrs r3, r2, #16",
                 check!($check, "93f"),
                 calibrate!($bg, 12),
-                admit!(3, "17b"),
+                admit!($bg, 3, "17b"),
                 "b 17b",
                 // The hot loop's exit: the tiers' ends stored, room and
                 // attention checked.
