@@ -55,13 +55,23 @@ class Qemu:
         for p in (self.sock_path, self.log_path):
             if os.path.exists(p):
                 os.unlink(p)
-        sh_args = "".join(",arg=" + a for a in ("brightpix-qemu",) + tuple(args))
+        sh_args = "".join(",arg=" + a for a in ("brightpix-qemu", *args))
         cmd = [
-            "qemu-system-arm", "-cpu", "cortex-m4", "-machine", "mps2-an386",
-            "-display", "none", "-monitor", "none",
-            "-serial", "unix:%s,server=on,wait=on" % self.sock_path,
-            "-semihosting-config", "enable=on,target=native" + sh_args,
-            "-kernel", elf,
+            "qemu-system-arm",
+            "-cpu",
+            "cortex-m4",
+            "-machine",
+            "mps2-an386",
+            "-display",
+            "none",
+            "-monitor",
+            "none",
+            "-serial",
+            f"unix:{self.sock_path},server=on,wait=on",
+            "-semihosting-config",
+            "enable=on,target=native" + sh_args,
+            "-kernel",
+            elf,
         ]
         self.t0 = time.monotonic()
         self.log = open(self.log_path, "wb")
@@ -72,10 +82,12 @@ class Qemu:
                 self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
                 self.sock.connect(self.sock_path)
                 break
-            except (FileNotFoundError, ConnectionRefusedError):
+            except (FileNotFoundError, ConnectionRefusedError) as err:
                 self.sock.close()
                 if time.monotonic() > deadline or self.proc.poll() is not None:
-                    raise RuntimeError("QEMU did not open the UART socket: %r" % (self.proc.communicate(),))
+                    raise RuntimeError(
+                        f"QEMU did not open the UART socket: {self.proc.communicate()!r}"
+                    ) from err
                 time.sleep(0.02)
         self.t_connected = time.monotonic()
 
@@ -85,7 +97,7 @@ class Qemu:
         while len(out) < n:
             chunk = self.sock.recv(n - len(out))
             if not chunk:
-                raise RuntimeError("UART socket closed after %d of %d bytes" % (len(out), n))
+                raise RuntimeError(f"UART socket closed after {len(out)} of {n} bytes")
             out += chunk
         return bytes(out)
 
@@ -97,7 +109,7 @@ class Qemu:
         return rc
 
     def cpu_seconds(self):
-        with open("/proc/%d/stat" % self.proc.pid) as f:
+        with open(f"/proc/{self.proc.pid}/stat") as f:
             fields = f.read().rsplit(")", 1)[1].split()
         return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
@@ -106,7 +118,7 @@ class Qemu:
             raw = f.read()
         res = subprocess.run(["defmt-print", "-e", elf], input=raw, capture_output=True, timeout=30)
         text = res.stdout.decode(errors="replace") + res.stderr.decode(errors="replace")
-        return raw, [l for l in text.splitlines() if l.strip()]
+        return raw, [line for line in text.splitlines() if line.strip()]
 
 
 def pty_backpressure(elf, tmp, payload, delay):
@@ -117,10 +129,21 @@ def pty_backpressure(elf, tmp, payload, delay):
     log_path = os.path.join(tmp, "defmt-pty.bin")
     log = open(log_path, "wb")
     cmd = [
-        "qemu-system-arm", "-cpu", "cortex-m4", "-machine", "mps2-an386",
-        "-display", "none", "-monitor", "none", "-serial", "pty",
-        "-semihosting-config", "enable=on,target=native,arg=brightpix-qemu,arg=selftest=echo",
-        "-kernel", elf,
+        "qemu-system-arm",
+        "-cpu",
+        "cortex-m4",
+        "-machine",
+        "mps2-an386",
+        "-display",
+        "none",
+        "-monitor",
+        "none",
+        "-serial",
+        "pty",
+        "-semihosting-config",
+        "enable=on,target=native,arg=brightpix-qemu,arg=selftest=echo",
+        "-kernel",
+        elf,
     ]
     proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.PIPE)
     pts = None
@@ -168,9 +191,9 @@ def pty_backpressure(elf, tmp, payload, delay):
     log.close()
     with open(log_path, "rb") as f:
         raw = f.read()
-    raw = raw[raw.index(b")\n") + 2:]  # QEMU's "char device redirected to ..." line
+    raw = raw[raw.index(b")\n") + 2 :]  # QEMU's "char device redirected to ..." line
     res = subprocess.run(["defmt-print", "-e", elf], input=raw, capture_output=True, timeout=30)
-    lines = [l for l in res.stdout.decode(errors="replace").splitlines() if l.strip()]
+    lines = [line for line in res.stdout.decode(errors="replace").splitlines() if line.strip()]
     return bytes(got) == payload, rc, lines
 
 
@@ -202,7 +225,10 @@ def main():
         time.sleep(2.0)
         cpu = q.cpu_seconds() - cpu0
         idle_wall = time.monotonic() - w0
-        check(cpu < 0.5 * idle_wall, "idle: %.2f s host CPU in %.2f s wall (WFI sleeps)" % (cpu, idle_wall))
+        check(
+            cpu < 0.5 * idle_wall,
+            f"idle: {cpu:.2f} s host CPU in {idle_wall:.2f} s wall (WFI sleeps)",
+        )
 
         rtts = []
         for i in range(50):
@@ -212,11 +238,13 @@ def main():
             got = q.recv_exact(1)
             rtts.append(time.monotonic() - t)
             if got != b:
-                check(False, "single-byte echo %d: sent %r got %r" % (i, b, got))
+                check(False, f"single-byte echo {i}: sent {b!r} got {got!r}")
                 break
         rtts.sort()
-        print("     single-byte round trip: median %.0f us, max %.0f us"
-              % (rtts[len(rtts) // 2] * 1e6, rtts[-1] * 1e6))
+        print(
+            f"     single-byte round trip: median {rtts[len(rtts) // 2] * 1e6:.0f} us, "
+            f"max {rtts[-1] * 1e6:.0f} us"
+        )
 
         payload = bytes(rng.choice([b for b in range(256) if b != EOT]) for _ in range(32_768))
         received = bytearray()
@@ -230,34 +258,41 @@ def main():
         q.sock.sendall(payload)
         th.join()
         dt = time.monotonic() - t
-        check(bytes(received) == payload, "bulk echo of %d random bytes (%.1f KB/s each way)"
-              % (len(payload), len(payload) / dt / 1e3))
+        check(
+            bytes(received) == payload,
+            f"bulk echo of {len(payload)} random bytes "
+            f"({len(payload) / dt / 1e3:.1f} KB/s each way)",
+        )
 
         q.sock.sendall(bytes([EOT]))
         rc = q.wait()
         wall = q.t_exit - q.t0
-        check(rc == 0, "EOT ends QEMU with exit code 0 (got %d)" % rc)
+        check(rc == 0, f"EOT ends QEMU with exit code 0 (got {rc})")
 
         raw, lines = q.defmt_lines(elf)
-        print("     defmt log (%d bytes raw):" % len(raw))
-        for l in lines:
-            print("       " + l)
+        print(f"     defmt log ({len(raw)} bytes raw):")
+        for line in lines:
+            print("       " + line)
         text = "\n".join(lines)
         check("brightpix-qemu: qemu-mps2-an386" in text, "defmt hello decoded")
         m = re.search(r"timer: 10 ms took (\d+) us", text)
-        check(m is not None and 10_000 <= int(m.group(1)) <= 20_000,
-          "Timer::after_millis(10) took [10, 20] ms (QEMU without -icount follows host time)")
-        want = "%d bytes read (SYS_FLEN %d), fnv1a32 0x%08x" % (len(blob), len(blob), fnv1a32(blob))
+        check(
+            m is not None and 10_000 <= int(m.group(1)) <= 20_000,
+            "Timer::after_millis(10) took [10, 20] ms (QEMU without -icount follows host time)",
+        )
+        want = f"{len(blob)} bytes read (SYS_FLEN {len(blob)}), fnv1a32 0x{fnv1a32(blob):08x}"
         check(want in text, "hostfs smoke check: " + want)
         total = 1 + 50 + len(payload)
-        check(("EOT after %d bytes echoed" % total) in text, "device counted %d echoed bytes" % total)
+        check(f"EOT after {total} bytes echoed" in text, f"device counted {total} echoed bytes")
         stamps = [int(x) for x in re.findall(r"^(\d+) ", text, re.M)]
         if not stamps:
             stamps = [int(float(x) * 1e6) for x in re.findall(r"^(\d+\.\d+) ", text, re.M)]
         if stamps:
             dev = stamps[-1] / 1e6
-            check(0.7 * wall - 0.3 < dev < wall + 0.3,
-                  "device clock: last log at %.2f s, wall %.2f s from QEMU start" % (dev, wall))
+            check(
+                0.7 * wall - 0.3 < dev < wall + 0.3,
+                f"device clock: last log at {dev:.2f} s, wall {wall:.2f} s from QEMU start",
+            )
         else:
             check(False, "defmt timestamps found")
 
@@ -266,17 +301,28 @@ def main():
         ok, rc, lines = pty_backpressure(elf, tmp, payload, PTY_DELAY)
         m = re.search(r"rx_stalls: (\d+), tx_waits: (\d+)", "\n".join(lines))
         stalls, waits = (int(m.group(1)), int(m.group(2))) if m else (0, 0)
-        check(ok and rc == 0, "pty, host reads only after %.1f s: %d bytes echoed intact, exit %d"
-              % (PTY_DELAY, len(payload), rc))
-        check(stalls > 0 and waits > 0, "flow control exercised: RX stalls %d, TX waits %d" % (stalls, waits))
+        check(
+            ok and rc == 0,
+            f"pty, host reads only after {PTY_DELAY:.1f} s: {len(payload)} bytes echoed intact, "
+            f"exit {rc}",
+        )
+        check(
+            stalls > 0 and waits > 0,
+            f"flow control exercised: RX stalls {stalls}, TX waits {waits}",
+        )
 
         # --- failure paths ---
-        for arg, code, needle in (("selftest=panic", 101, "panic"), ("selftest=udf", 102, "HardFault")):
+        for arg, code, needle in (
+            ("selftest=panic", 101, "panic"),
+            ("selftest=udf", 102, "HardFault"),
+        ):
             q = Qemu(elf, tmp, [arg])
             rc = q.wait()
             _, lines = q.defmt_lines(elf)
-            check(rc == code and any(needle in l for l in lines),
-                  "%s: exit code %d (want %d), log: %s" % (arg, rc, code, lines[-1] if lines else "-"))
+            check(
+                rc == code and any(needle in line for line in lines),
+                f"{arg}: exit code {rc} (want {code}), log: {lines[-1] if lines else '-'}",
+            )
 
     print("FAILED" if check.failed else "all checks passed")
     return 1 if check.failed else 0
