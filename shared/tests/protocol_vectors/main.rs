@@ -126,7 +126,7 @@ fn vectors() -> Value {
                   {\"Variant\": fields} or \"Variant\"; byte strings are arrays of numbers), its \
                   postcard body and its whole frame (COBS of body ++ CRC-32 LE, then 0x00), in hex; \
                   `text` is the device error's English text (Display). \
-                  Checked by shared/tests/protocol_vectors.rs.",
+                  Checked by shared/tests/protocol_vectors/.",
         "protocol_version": PROTOCOL_VERSION,
         "schema_hash": format!("{SCHEMA_HASH:#018x}"),
         "limits": {
