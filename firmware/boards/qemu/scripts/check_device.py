@@ -33,8 +33,6 @@ import os
 import queue
 import random
 import re
-import signal
-import socket
 import stat
 import subprocess
 import sys
@@ -43,6 +41,7 @@ import threading
 import time
 import zlib
 
+from qemu import Qemu
 from wire import (
     TABLE_BACKGROUND,
     TABLE_WINDOWS,
@@ -79,46 +78,12 @@ CHUNK_BYTES = 960
 # --------------------------------------------------------------------------------------
 
 
-class Device:
+class Device(Qemu):
     """QEMU running the firmware; UART0 on a unix socket; a reader thread decodes
     everything the device sends: Slopes/FrameDone are collected, replies queued."""
 
     def __init__(self, elf, tmp, fifo):
-        self.sock_path = os.path.join(tmp, "uart0.sock")
-        self.log_path = os.path.join(tmp, "defmt.bin")
-        args = ",arg=brightpix-qemu,arg=--pixels,arg=" + fifo
-        cmd = [
-            "qemu-system-arm",
-            "-cpu",
-            "cortex-m4",
-            "-machine",
-            "mps2-an386",
-            "-display",
-            "none",
-            "-monitor",
-            "none",
-            "-serial",
-            f"unix:{self.sock_path},server=on,wait=on",
-            "-semihosting-config",
-            "enable=on,target=native" + args,
-            "-kernel",
-            elf,
-        ]
-        self.log = open(self.log_path, "wb")
-        self.proc = subprocess.Popen(cmd, stdout=self.log, stderr=subprocess.PIPE)
-        deadline = time.monotonic() + 10
-        while True:
-            self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-            try:
-                self.sock.connect(self.sock_path)
-                break
-            except (FileNotFoundError, ConnectionRefusedError) as err:
-                self.sock.close()
-                if time.monotonic() > deadline or self.proc.poll() is not None:
-                    raise RuntimeError(
-                        f"QEMU did not open the UART socket: {self.proc.communicate()!r}"
-                    ) from err
-                time.sleep(0.02)
+        super().__init__(elf, tmp, ["--pixels", fifo])
         self.replies = queue.Queue()
         self.slopes = {}  # frame -> {index: (slope_x, slope_y, flux, valid)}
         self.done = {}  # frame -> count
@@ -179,32 +144,8 @@ class Device:
                     )
                 self.done_event.wait(left)
 
-    def cpu_seconds(self):
-        with open(f"/proc/{self.proc.pid}/stat") as f:
-            fields = f.read().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
     def close(self):
-        self.proc.send_signal(signal.SIGTERM)
-        try:
-            self.proc.wait(5)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-        self.sock.close()
-        self.log.close()
-
-    def defmt_lines(self, elf):
-        try:
-            with open(self.log_path, "rb") as f:
-                raw = f.read()
-            res = subprocess.run(
-                ["defmt-print", "-e", elf], input=raw, capture_output=True, timeout=30
-            )
-        except (FileNotFoundError, subprocess.TimeoutExpired):
-            return ["(defmt-print not available)"]
-        text = res.stdout.decode(errors="replace")
-        return [line for line in text.splitlines() if line.strip()]
+        self.stop()
 
 
 # --------------------------------------------------------------------------------------
@@ -605,7 +546,7 @@ def main():
                 )
 
         print("     device log:")
-        for line in dev.defmt_lines(elf):
+        for line in dev.defmt_lines(elf)[1]:
             print("       " + line)
     print(
         f"     throughput: UART0 PixelRows {uart_rate:.2f} frames/s, FIFO {fifo_rate:.1f} frames/s"

@@ -22,13 +22,14 @@ import os
 import random
 import re
 import select
-import socket
 import subprocess
 import sys
 import tempfile
 import threading
 import time
 import tty
+
+from qemu import Qemu
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 FIRMWARE = os.path.normpath(os.path.join(HERE, "..", "..", ".."))
@@ -43,82 +44,6 @@ def fnv1a32(data):
     for b in data:
         h = ((h ^ b) * 0x01000193) & 0xFFFFFFFF
     return h
-
-
-class Qemu:
-    """QEMU with UART0 on a unix socket (QEMU waits for us); QEMU's stdout (the
-    semihosting output: defmt frames, nothing else with -display/-monitor none) in a file."""
-
-    def __init__(self, elf, tmp, args=()):
-        self.sock_path = os.path.join(tmp, "uart0.sock")
-        self.log_path = os.path.join(tmp, "defmt.bin")
-        for p in (self.sock_path, self.log_path):
-            if os.path.exists(p):
-                os.unlink(p)
-        sh_args = "".join(",arg=" + a for a in ("brightpix-qemu", *args))
-        cmd = [
-            "qemu-system-arm",
-            "-cpu",
-            "cortex-m4",
-            "-machine",
-            "mps2-an386",
-            "-display",
-            "none",
-            "-monitor",
-            "none",
-            "-serial",
-            f"unix:{self.sock_path},server=on,wait=on",
-            "-semihosting-config",
-            "enable=on,target=native" + sh_args,
-            "-kernel",
-            elf,
-        ]
-        self.t0 = time.monotonic()
-        self.log = open(self.log_path, "wb")
-        self.proc = subprocess.Popen(cmd, stdout=self.log, stderr=subprocess.PIPE)
-        deadline = time.monotonic() + 10
-        while True:
-            try:
-                self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-                self.sock.connect(self.sock_path)
-                break
-            except (FileNotFoundError, ConnectionRefusedError) as err:
-                self.sock.close()
-                if time.monotonic() > deadline or self.proc.poll() is not None:
-                    raise RuntimeError(
-                        f"QEMU did not open the UART socket: {self.proc.communicate()!r}"
-                    ) from err
-                time.sleep(0.02)
-        self.t_connected = time.monotonic()
-
-    def recv_exact(self, n, timeout=10.0):
-        self.sock.settimeout(timeout)
-        out = bytearray()
-        while len(out) < n:
-            chunk = self.sock.recv(n - len(out))
-            if not chunk:
-                raise RuntimeError(f"UART socket closed after {len(out)} of {n} bytes")
-            out += chunk
-        return bytes(out)
-
-    def wait(self, timeout=10.0):
-        rc = self.proc.wait(timeout)
-        self.t_exit = time.monotonic()
-        self.sock.close()
-        self.log.close()
-        return rc
-
-    def cpu_seconds(self):
-        with open(f"/proc/{self.proc.pid}/stat") as f:
-            fields = f.read().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-    def defmt_lines(self, elf):
-        with open(self.log_path, "rb") as f:
-            raw = f.read()
-        res = subprocess.run(["defmt-print", "-e", elf], input=raw, capture_output=True, timeout=30)
-        text = res.stdout.decode(errors="replace") + res.stderr.decode(errors="replace")
-        return raw, [line for line in text.splitlines() if line.strip()]
 
 
 def pty_backpressure(elf, tmp, payload, delay):
