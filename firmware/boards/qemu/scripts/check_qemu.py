@@ -29,7 +29,7 @@ import threading
 import time
 import tty
 
-from qemu import Qemu
+from qemu import Qemu, command
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 FIRMWARE = os.path.normpath(os.path.join(HERE, "..", "..", ".."))
@@ -53,23 +53,7 @@ def pty_backpressure(elf, tmp, payload, delay):
     Returns (echo ok, exit code, defmt lines)."""
     log_path = os.path.join(tmp, "defmt-pty.bin")
     log = open(log_path, "wb")
-    cmd = [
-        "qemu-system-arm",
-        "-cpu",
-        "cortex-m4",
-        "-machine",
-        "mps2-an386",
-        "-display",
-        "none",
-        "-monitor",
-        "none",
-        "-serial",
-        "pty",
-        "-semihosting-config",
-        "enable=on,target=native,arg=brightpix-qemu,arg=selftest=echo",
-        "-kernel",
-        elf,
-    ]
+    cmd = command(elf, "pty", ["selftest=echo"])
     proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.PIPE)
     pts = None
     deadline = time.monotonic() + 10

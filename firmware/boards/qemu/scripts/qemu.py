@@ -12,6 +12,30 @@ import subprocess
 import time
 
 
+def command(elf, serial, args=()):
+    """qemu-system-arm's command line for `elf` with UART0 on `serial` (a QEMU character
+    device: `pty`, `unix:PATH,server=on,wait=on`) and `args` after the program name on the
+    semihosting command line."""
+    semihosting = "".join(",arg=" + a for a in ("brightpix-qemu", *args))
+    return [
+        "qemu-system-arm",
+        "-cpu",
+        "cortex-m4",
+        "-machine",
+        "mps2-an386",
+        "-display",
+        "none",
+        "-monitor",
+        "none",
+        "-serial",
+        serial,
+        "-semihosting-config",
+        "enable=on,target=native" + semihosting,
+        "-kernel",
+        elf,
+    ]
+
+
 class Qemu:
     """QEMU running `elf` with `args` after the program name on the semihosting command
     line (e.g. `["--pixels", path]`); connected to UART0 (`sock`) when built."""
@@ -22,24 +46,7 @@ class Qemu:
         for p in (self.sock_path, self.log_path):
             if os.path.exists(p):
                 os.unlink(p)
-        semihosting = "".join(",arg=" + a for a in ("brightpix-qemu", *args))
-        cmd = [
-            "qemu-system-arm",
-            "-cpu",
-            "cortex-m4",
-            "-machine",
-            "mps2-an386",
-            "-display",
-            "none",
-            "-monitor",
-            "none",
-            "-serial",
-            f"unix:{self.sock_path},server=on,wait=on",
-            "-semihosting-config",
-            "enable=on,target=native" + semihosting,
-            "-kernel",
-            elf,
-        ]
+        cmd = command(elf, f"unix:{self.sock_path},server=on,wait=on", args)
         self.t0 = time.monotonic()
         self.log = open(self.log_path, "wb")
         self.proc = subprocess.Popen(cmd, stdout=self.log, stderr=subprocess.PIPE)
