@@ -130,7 +130,9 @@ pub struct OpenWindow {
     /// dropped) and `attention` (never again), as `raise_to_hint` would.
     pub(crate) raise: bool,
     /// `low` left out a needed pixel or the buffer could not be compacted:
-    /// the window is computed again from the row history at its end.
+    /// the window is computed again from the row history at its end. Also
+    /// set for every window selecting the complement
+    /// (`stream::complement`), which ends its own way if it can.
     pub(crate) rescan: bool,
     pub(crate) bounds: WindowBounds,
     /// Weighted sums of a window without selection.

@@ -1,7 +1,8 @@
-//! The row kernel's self-test: the assembly (`dsp`) against its portable
-//! twin on random rows, run by the QEMU benchmark before it times anything.
+//! The row kernels' self-tests: the assembly (`dsp`, `complement_dsp`)
+//! against its portable twin on random rows, run by the QEMU benchmark
+//! before it times anything.
 
-use super::{row, row_portable, RowScan, RowStop};
+use super::{complement, row, row_portable, RowScan, RowStop};
 use crate::engine::select::Entry;
 use crate::engine::window::OpenWindow;
 
@@ -237,6 +238,164 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
                 window: at,
                 entries: [buffers[0][at], buffers[1][at]],
             });
+        }
+    }
+    Ok(())
+}
+
+/// The complement row kernel ([`complement::row`]) against its twin
+/// ([`complement::row_portable`]) on random rows, windows, ceilings, maps
+/// and bit depths: the same stop and out-of-range pixel, and for every
+/// window the same candidates (values, positions, order) and sums; a
+/// window with a pixel out of range left as it was. As
+/// [`check_row_kernel`], run by the QEMU benchmark before it times
+/// anything.
+pub fn check_complement_row(seed: u64, rounds: usize) -> Result<(), KernelMismatch> {
+    use crate::engine::calibrate::With;
+    use crate::engine::centroid::Moments;
+    const PIXELS: usize = 224;
+    const SHARE: usize = 72;
+    #[repr(C, align(4))]
+    struct Pixels([u16; PIXELS]);
+    let mut state = seed | 1;
+    let mut next = move |below: u32| {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        ((state >> 16) as u32) % below.max(1)
+    };
+    let mut pixels = Pixels([0; PIXELS]);
+    let mut background = [0i32; PIXELS];
+    let mut buffers = [[Entry::ZERO; 7 * SHARE]; 2];
+    let mismatch = |what, round, window| KernelMismatch {
+        what,
+        round,
+        window,
+        entries: [Entry::ZERO; 2],
+    };
+    for round in 0..rounds {
+        let top = 1 + next(5) * 13_000 + next(300);
+        let max_raw: u16 = [255, 4_095, u16::MAX][round % 3];
+        let check = max_raw != u16::MAX;
+        for r in pixels.0.iter_mut() {
+            *r = next(top).min(max_raw as u32) as u16;
+            if check && next(300) == 0 {
+                *r = max_raw + 1 + next(50) as u16;
+            }
+        }
+        // The map's full range, sometimes.
+        let spread = if next(8) == 0 { 1 << 21 } else { 16 * top };
+        for b in background.iter_mut() {
+            *b = (next(spread) as i32 - (spread / 2) as i32).clamp(-(1 << 20), 1 << 20);
+        }
+        let with_background = round % 4 != 3;
+        let row_index = next(200) as u16 + 64;
+        let mut windows = [[OpenWindow::CLOSED; 7]; 2];
+        let (mut x, mut made) = (2 * next(3) as u16, 0);
+        for k in 0..1 + next(7) as usize {
+            let width = 2 + 2 * next(32) as u16;
+            if (x + width) as usize > PIXELS {
+                break;
+            }
+            let y = row_index - next(64) as u16;
+            let ceiling = match next(6) {
+                0 => i32::MAX,
+                1 => i32::MIN,
+                _ => next(32 * top) as i32 - (8 * top) as i32,
+            };
+            let front = next(4) as usize;
+            let sums = Moments {
+                sum_w: next(1 << 30) as i64 - (1 << 29),
+                sum_wi: (next(1 << 30) as i64) << 8,
+                sum_wj: -(next(1 << 30) as i64),
+            };
+            for (copies, buffer) in windows.iter_mut().zip(buffers.iter_mut()) {
+                let w = &mut copies[k];
+                *w = OpenWindow::CLOSED;
+                (w.x, w.end_column, w.y, w.width) = (x, x + width, y, width);
+                w.hint = ceiling;
+                w.position_base = 0u32.wrapping_sub((y as u32) << 6).wrapping_sub(x as u32);
+                w.buffer = buffer.as_mut_ptr() as usize + k * SHARE * core::mem::size_of::<Entry>();
+                w.capacity = SHARE as u16;
+                w.set_front(front);
+                w.set_back(0);
+                w.moments = sums;
+            }
+            made = k + 1;
+            x += width + 2 * next(2) as u16;
+        }
+        if made == 0 {
+            continue;
+        }
+        for buffer in buffers.iter_mut() {
+            buffer.fill(Entry::ZERO);
+        }
+        let before = windows[0];
+        let run = |windows: &mut [OpenWindow], twin: bool| {
+            let map = with_background.then_some(&background[..]);
+            let mut args = RowScan::new(&pixels.0, row_index, map, None, None, windows, max_raw);
+            type B = With<true, false, false>;
+            type P = With<false, false, false>;
+            // SAFETY: arguments from live slices; every window's columns
+            // are inside the row, at even columns, with room for them.
+            let stop = unsafe {
+                match (with_background, check, twin) {
+                    (true, false, false) => complement::row::<B, false>(&mut args),
+                    (true, true, false) => complement::row::<B, true>(&mut args),
+                    (false, false, false) => complement::row::<P, false>(&mut args),
+                    (false, true, false) => complement::row::<P, true>(&mut args),
+                    (true, false, true) => complement::row_portable::<B, false>(&mut args),
+                    (true, true, true) => complement::row_portable::<B, true>(&mut args),
+                    (false, false, true) => complement::row_portable::<P, false>(&mut args),
+                    (false, true, true) => complement::row_portable::<P, true>(&mut args),
+                }
+            };
+            let first = windows.as_ptr() as usize;
+            match stop {
+                RowStop::Done => (made, None),
+                RowStop::Attention(_) => (usize::MAX, None),
+                RowStop::OutOfRange { window, pixel } => (
+                    (window - first) / core::mem::size_of::<OpenWindow>(),
+                    Some(pixel - pixels.0.as_ptr() as usize),
+                ),
+            }
+        };
+        let (a, b) = windows.split_at_mut(1);
+        let (kernel, twin) = (&mut a[0][..made], &mut b[0][..made]);
+        let stop_kernel = run(kernel, false);
+        if stop_kernel != run(twin, true) {
+            return Err(mismatch(
+                "the complement kernel stopped elsewhere than its twin",
+                round,
+                stop_kernel.0,
+            ));
+        }
+        for (k, (w, t)) in kernel.iter().zip(twin.iter()).enumerate() {
+            if w.moments != t.moments || w.front() != t.front() {
+                return Err(mismatch(
+                    "the complement kernel's sums or candidate count differ from its twin's",
+                    round,
+                    k,
+                ));
+            }
+            if k == stop_kernel.0
+                && (w.moments != before[k].moments || w.front() != before[k].front())
+            {
+                return Err(mismatch(
+                    "the complement kernel changed a window with a pixel out of range",
+                    round,
+                    k,
+                ));
+            }
+            let at = k * SHARE;
+            if let Some(i) = (at..at + w.front()).find(|&i| buffers[0][i] != buffers[1][i]) {
+                return Err(KernelMismatch {
+                    what: "the complement kernel's candidates differ from its twin's",
+                    round,
+                    window: i,
+                    entries: [buffers[0][i], buffers[1][i]],
+                });
+            }
         }
     }
     Ok(())

@@ -23,6 +23,9 @@
 //! - `scan`, the **general path**: one window's pixels, with the room
 //!   checked before every store, for what the kernel leaves (a chunk that
 //!   ends inside a window, a window short of room, odd columns).
+//!
+//! Windows that select the complement (`stream::complement`) have a hot
+//! loop of their own, in both forms: `complement`.
 
 use super::calibrate::{self, Steps};
 use super::prefilter;
@@ -373,7 +376,10 @@ pub(super) fn scan<S: Steps, const CHECK: bool>(
 }
 
 mod check;
+pub mod complement;
+#[cfg(target_arch = "arm")]
+mod complement_dsp;
 #[cfg(target_arch = "arm")]
 mod dsp;
 
-pub use check::{check_row_kernel, KernelMismatch};
+pub use check::{check_complement_row, check_row_kernel, KernelMismatch};

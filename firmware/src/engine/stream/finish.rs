@@ -4,6 +4,7 @@
 //! filter and seed updated, the moments and the sub-aperture's result.
 
 use super::admission::settle_at_hint;
+use super::complement::COMPLEMENT;
 use super::last_row::PREPARED;
 use super::{Engine, OutputSink};
 use crate::engine::centroid::Moments;
@@ -31,9 +32,17 @@ impl Engine<'_, '_> {
     }
 
     /// The ordinary end: the cutoff by a selection over the tiers (or a
-    /// rescan), the moments by a pass over the candidates kept.
+    /// rescan), the moments by a pass over the candidates kept. A window
+    /// selecting the complement (marked for a rescan, so that no other end
+    /// takes it) ends its own way here first, if it can.
     #[inline(never)]
     pub(super) fn finish_ordinary(&mut self, k: usize, sink: &mut impl OutputSink) {
+        let window = &self.memory.open[k];
+        // Tested in this order, so that the other windows (rarely marked
+        // for a rescan) pay one test.
+        if window.rescan && window.attention == COMPLEMENT && self.finish_complement(k, sink) {
+            return;
+        }
         self.finished_in_row = true;
         let memory = &mut self.memory;
         let window = &mut memory.open[k];

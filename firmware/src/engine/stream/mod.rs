@@ -32,7 +32,10 @@
 //!   `closed_form`: the same from sums taken in one pass, without a level
 //!   filter, when the candidates reach the cutoff (for `subtract-next`
 //!   almost always, for the other rules most often); `last_row`: most of
-//!   that done as the frame's last row begins.
+//!   that done as the frame's last row begins;
+//! - `complement`: a `subtract-next` window keeping more than half its
+//!   pixels keeps the few below its cutoff instead, beside every pixel's
+//!   sums.
 
 use super::calibrate::{Calibrator, Steps, WindowBounds, With};
 use super::centroid::{Centroider, SubapertureResult};
@@ -45,6 +48,7 @@ use brightpix_protocol::{Config, ConfigError, MAX_WINDOW_SIDE};
 
 mod admission;
 mod closed_form;
+mod complement;
 mod finish;
 mod last_row;
 mod open;
@@ -157,11 +161,16 @@ pub struct Engine<'c, 'm> {
     closed_form: bool,
     /// Likewise, for `subtract-next-distinct` or `subtract-mean`.
     level_closed_form: bool,
+    /// Some window selects the complement (`complement`).
+    complement: bool,
+    /// Every open window selects the complement, with whole words for
+    /// segments: a whole row takes `scan::complement::row`.
+    all_complement: bool,
     /// The length of the last push, from which `prepare_row` was set.
     push_len: usize,
-    /// Which instance of `push_with` a push takes (the calibration steps
-    /// and the range check, bits as in [`variant`]): decided once per
-    /// configuration, so that a push is one indexed jump.
+    /// Which instance of `push_with` a push takes (the calibration steps,
+    /// the range check and the complement, bits as in [`variant`]):
+    /// decided once per configuration, so that a push is one indexed jump.
     variant: u8,
     /// Open windows: `memory.open[..open_len]`, by first column.
     open_len: usize,
@@ -253,6 +262,8 @@ impl<'c, 'm> Engine<'c, 'm> {
                 brightpix_protocol::SelectionRule::SubtractNextDistinct
                     | brightpix_protocol::SelectionRule::SubtractMean { .. }
             ) && config.selection.level_filter.is_none(),
+            complement: complement::applies(&config),
+            all_complement: false,
             push_len: 0,
             variant: variant(&config),
             open_len: 0,
@@ -359,10 +370,18 @@ impl<'c, 'm> Engine<'c, 'm> {
         }
         macro_rules! with {
             ($b:literal, $g:literal, $t:literal, $c:literal) => {
-                self.push_with::<With<$b, $g, $t>, $c>(pixels, sink)
+                self.push_with::<With<$b, $g, $t>, $c, false>(pixels, sink)
+            };
+            ($b:literal, $c:literal, complement) => {
+                self.push_with::<With<$b, false, false>, $c, true>(pixels, sink)
             };
         }
         match self.variant {
+            // `COMPLEMENT_VARIANT` (16) with a background map or none.
+            16 => with!(false, false, complement),
+            17 => with!(true, false, complement),
+            24 => with!(false, true, complement),
+            25 => with!(true, true, complement),
             0 => with!(false, false, false, false),
             1 => with!(true, false, false, false),
             2 => with!(false, true, false, false),
@@ -383,8 +402,11 @@ impl<'c, 'm> Engine<'c, 'm> {
     }
 
     /// `S`: the calibration steps; `CHECK`: whether raw pixels must be
-    /// checked against the bit depth (below 16 bits).
-    fn push_with<S: Steps, const CHECK: bool>(
+    /// checked against the bit depth (below 16 bits); `COMPLEMENT`: whether
+    /// windows may select the complement, whose whole rows then take
+    /// `complement_row` (an instance of its own, so that the others' row
+    /// path does not even test for it).
+    fn push_with<S: Steps, const CHECK: bool, const COMPLEMENT: bool>(
         &mut self,
         mut pixels: &[u16],
         sink: &mut impl OutputSink,
@@ -414,7 +436,7 @@ impl<'c, 'm> Engine<'c, 'm> {
                 if pixels.len() >= width {
                     let (row, rest) = pixels.split_at(width);
                     self.keep_row(row);
-                    if let Err(bad) = self.push_whole_row::<S, CHECK>(row, sink) {
+                    if let Err(bad) = self.push_whole_row::<S, CHECK, COMPLEMENT>(row, sink) {
                         return Err(self.out_of_range(row, bad));
                     }
                     self.end_row(sink);
@@ -616,11 +638,25 @@ fn copy_unaligned_row(from: &[u16], to: &mut [u16]) {
 /// a fixed threshold, 3 pixels checked against a bit depth below 16.
 fn variant(config: &Config<'_>) -> u8 {
     let c = &config.calibration;
-    c.background.is_some() as u8
+    let steps = c.background.is_some() as u8
         | (c.gain.is_some() as u8) << 1
         | (c.threshold.is_some() as u8) << 2
-        | ((config.camera.max_raw() != u16::MAX) as u8) << 3
+        | ((config.camera.max_raw() != u16::MAX) as u8) << 3;
+    // The complement's row kernel takes a background map or none.
+    if complement::applies(config) && c.gain.is_none() && c.threshold.is_none() {
+        steps | COMPLEMENT_VARIANT
+    } else {
+        steps
+    }
 }
+
+/// The [`variant`] bit of configurations whose windows may select the
+/// complement (`complement`), with neither gain map nor fixed threshold.
+const COMPLEMENT_VARIANT: u8 = 16;
+const _: () = assert!(
+    COMPLEMENT_VARIANT == 16,
+    "`Engine::push` matches its values"
+);
 
 /// `to.copy_from_slice(from)`, eight pixels at a time when both are
 /// aligned alike (`prefilter::copy_words`), else a pixel at a time (the

@@ -169,6 +169,9 @@ impl Engine<'_, '_> {
             && open[open.len() - 1].end_column == self.config.camera.width
             && open.windows(2).all(|pair| pair[0].end_column == pair[1].x);
         self.next_last_row = open.iter().map(|w| w.last_row).min().unwrap_or(u16::MAX);
+        if self.complement {
+            self.update_complement();
+        }
         let range = self.memory.open[..self.open_len].as_mut_ptr_range();
         self.scan.first = range.start as usize;
         self.scan.end = range.end as usize;

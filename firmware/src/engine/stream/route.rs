@@ -4,7 +4,7 @@
 //! against the bit depth in raster order.
 
 use super::admission::{attention, make_room, place, raise_to_hint, update_admission};
-use super::{check_range, Engine, OutputSink};
+use super::{check_range, complement, Engine, OutputSink};
 use crate::engine::calibrate::{self, Steps};
 use crate::engine::scan::{self, scan, RowStop, Segment, Stop};
 use crate::engine::select::pack;
@@ -20,7 +20,7 @@ impl Engine<'_, '_> {
     /// range must be found in raster order) every pixel of the row in a
     /// window, since only windows' pixels are checked.
     #[inline(always)]
-    pub(super) fn push_whole_row<S: Steps, const CHECK: bool>(
+    pub(super) fn push_whole_row<S: Steps, const CHECK: bool, const COMPLEMENT: bool>(
         &mut self,
         row_pixels: &[u16],
         sink: &mut impl OutputSink,
@@ -40,6 +40,9 @@ impl Engine<'_, '_> {
                 self.finish_last_row(sink);
             }
             return Ok(());
+        }
+        if COMPLEMENT && self.all_complement {
+            return self.complement_row::<S, CHECK>(row_address, sink);
         }
         let mut k = 0;
         while k < self.open_len {
@@ -80,7 +83,7 @@ impl Engine<'_, '_> {
 
     /// The windows whose last row is the current row, finished.
     #[inline(always)]
-    fn finish_last_row(&mut self, sink: &mut impl OutputSink) {
+    pub(super) fn finish_last_row(&mut self, sink: &mut impl OutputSink) {
         for k in 0..self.open_len {
             if self.memory.open[k].last_row == self.row {
                 self.finish(k, sink);
@@ -132,12 +135,7 @@ impl Engine<'_, '_> {
         first: usize,
     ) -> Option<(usize, usize)> {
         const SIZE: usize = core::mem::size_of::<OpenWindow>();
-        self.scan.row = row_address;
-        self.scan.bg_delta = self.bg_row.wrapping_sub(2 * row_address).wrapping_sub(16);
-        self.scan.position_delta = self
-            .position_row
-            .wrapping_sub(4)
-            .wrapping_sub((row_address >> 1) as u32);
+        self.scan_row(row_address);
         loop {
             // SAFETY: the windows of the kernel's range are kernel-ready
             // and their segments lie in the row the caller holds.
@@ -152,6 +150,17 @@ impl Engine<'_, '_> {
                 }
             }
         }
+    }
+
+    /// The row kernels' arguments for the row at `row_address`.
+    #[inline(always)]
+    pub(super) fn scan_row(&mut self, row_address: usize) {
+        self.scan.row = row_address;
+        self.scan.bg_delta = self.bg_row.wrapping_sub(2 * row_address).wrapping_sub(16);
+        self.scan.position_delta = self
+            .position_row
+            .wrapping_sub(4)
+            .wrapping_sub((row_address >> 1) as u32);
     }
 
     /// A pixel out of range in window `k`'s segment of a gapless row: the
@@ -466,6 +475,9 @@ impl Engine<'_, '_> {
             return Ok(());
         }
         if window.rescan {
+            if window.attention == complement::COMPLEMENT {
+                return self.complement_segment::<S, CHECK>(k, raw, pixel, i0, j);
+            }
             return if CHECK {
                 check_range(raw, self.max_raw)
             } else {

@@ -62,7 +62,7 @@ use brightpix_firmware::engine::centroid::{
 use brightpix_firmware::engine::prefilter::{
     any_at_least, any_at_least_portable, copy_words, copy_words_portable, uqsub16, uqsub16_portable,
 };
-use brightpix_firmware::engine::scan::check_row_kernel;
+use brightpix_firmware::engine::scan::{check_complement_row, check_row_kernel};
 use brightpix_firmware::engine::select::Entry;
 use brightpix_firmware::engine::{StaticEngineMemory, SubapertureResult};
 use brightpix_protocol::SubapertureWindow;
@@ -171,6 +171,13 @@ fn dsp_selftest() {
     }
     sums_above_selftest(&mut rng);
     if let Err(e) = check_row_kernel(0x2545_f491_4f6c_dd1d, 3_000) {
+        println!(
+            "round {}, detail {:#x}, entries {:?}",
+            e.round, e.window, e.entries
+        );
+        fail(e.what);
+    }
+    if let Err(e) = check_complement_row(0x9e37_79b9_7f4a_7c15, 3_000) {
         println!(
             "round {}, detail {:#x}, entries {:?}",
             e.round, e.window, e.entries
