@@ -6,6 +6,25 @@ use super::{complement, row, row_portable, RowScan, RowStop};
 use crate::engine::select::Entry;
 use crate::engine::window::OpenWindow;
 
+/// Pixels of the self-tests' camera row.
+const PIXELS: usize = 224;
+
+/// The self-tests' camera row, word-aligned as the kernels need.
+#[repr(C, align(4))]
+struct Pixels([u16; PIXELS]);
+
+/// A xorshift generator from `seed`: each call, a number below its
+/// argument (0 for 0).
+fn uniform(seed: u64) -> impl FnMut(u32) -> u32 {
+    let mut state = seed | 1;
+    move |below: u32| {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        ((state >> 16) as u32) % below.max(1)
+    }
+}
+
 /// What [`check_row_kernel`] found different.
 #[derive(Clone, Copy, Debug)]
 pub struct KernelMismatch {
@@ -26,16 +45,7 @@ pub struct KernelMismatch {
 /// the twin. `Err` says what differed, in which round.
 pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> {
     use crate::engine::calibrate::With;
-    const PIXELS: usize = 224;
-    #[repr(C, align(4))]
-    struct Pixels([u16; PIXELS]);
-    let mut state = seed | 1;
-    let mut next = move |below: u32| {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        ((state >> 16) as u32) % below.max(1)
-    };
+    let mut next = uniform(seed);
     let mut pixels = Pixels([0; PIXELS]);
     let mut background = [0i32; PIXELS];
     // Each window gets `SHARE` entries, more than its widest segment.
@@ -253,17 +263,8 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
 pub fn check_complement_row(seed: u64, rounds: usize) -> Result<(), KernelMismatch> {
     use crate::engine::calibrate::With;
     use crate::engine::centroid::Moments;
-    const PIXELS: usize = 224;
     const SHARE: usize = 72;
-    #[repr(C, align(4))]
-    struct Pixels([u16; PIXELS]);
-    let mut state = seed | 1;
-    let mut next = move |below: u32| {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        ((state >> 16) as u32) % below.max(1)
-    };
+    let mut next = uniform(seed);
     let mut pixels = Pixels([0; PIXELS]);
     let mut background = [0i32; PIXELS];
     let mut buffers = [[Entry::ZERO; 7 * SHARE]; 2];
