@@ -36,6 +36,22 @@ impl SubapertureState {
 /// Bytes of one candidate entry.
 const ENTRY: usize = core::mem::size_of::<Entry>();
 
+/// What the row kernel does when a window's front reaches `attention`
+/// (`OpenWindow::raise`). Its value minus one is the raised admission's
+/// strictness, which the kernel's assembly uses as such: `admit = hint +
+/// (raise - 1)`, `strict = raise - 1`.
+#[repr(u8)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Raise {
+    /// Stop, for the engine (`Engine::attend`).
+    None = 0,
+    /// Admit `p >= hint` (`threshold`: `v(N)` may be the hint, whose
+    /// copies are then kept).
+    AtHint = 1,
+    /// Admit `p > hint` (`subtract-next`: strict at once).
+    AboveHint = 2,
+}
+
 /// A window that has started receiving pixels in this frame.
 ///
 /// The open windows are kept in the engine's memory in order of first
@@ -82,7 +98,7 @@ pub struct OpenWindow {
     /// Bytes of room a segment can take (`8 width`): when less is left
     /// after a segment, the kernel stops at the window.
     pub(crate) room: u16,
-    /// `floor - 1` (a lane of `lanes`) for the admission `hint + 1`: see
+    /// `floor - 1` (a lane of `lanes`) for the admission a raise sets: see
     /// `raise`.
     pub(crate) raise_lane: u16,
 
@@ -122,13 +138,13 @@ pub struct OpenWindow {
     /// Admission is `p > low` (see `select::Buffer::strict`).
     pub(crate) strict: bool,
     /// When the front reaches `attention`, the row kernel raises admission
-    /// to just above the hint itself instead of stopping (`subtract-next`,
-    /// where reaching `attention` always proves the cutoff at or above the
-    /// hint: see `stream::admission::prepare_raise`): it writes `floor`
-    /// and `lanes` (from `raise_lane`), `admit` (`hint + 1`), `low` (the
-    /// hint), `strict`, `back_start` (the buffer's end: the back tier
-    /// dropped) and `attention` (never again), as `raise_to_hint` would.
-    pub(crate) raise: bool,
+    /// to the hint itself instead of stopping, where reaching `attention`
+    /// always proves the cutoff at or above the hint (see
+    /// `stream::admission::prepare_raise`): it writes `floor` and `lanes`
+    /// (from `raise_lane`), `admit`, `low` (the hint), `strict`,
+    /// `back_start` (the buffer's end: the back tier dropped) and
+    /// `attention` (never again), as `raise_to_hint` would.
+    pub(crate) raise: Raise,
     /// `low` left out a needed pixel or the buffer could not be compacted:
     /// the window is computed again from the row history at its end. Also
     /// set for every window selecting the complement
@@ -171,7 +187,7 @@ impl OpenWindow {
         floor: 0,
         finished: true,
         strict: false,
-        raise: false,
+        raise: Raise::None,
         rescan: false,
         bounds: WindowBounds::NONE,
         moments: Moments::ZERO,

@@ -4,7 +4,7 @@
 
 use super::{complement, row, row_portable, RowScan, RowStop};
 use crate::engine::select::Entry;
-use crate::engine::window::OpenWindow;
+use crate::engine::window::{OpenWindow, Raise};
 
 /// Pixels of the self-tests' camera row.
 const PIXELS: usize = 224;
@@ -79,7 +79,12 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
             let floor = next(top + 2);
             let admit = next(16 * top) as i32 - (16 * top / 4) as i32;
             let hint = admit + next(16 * top / 2 + 1) as i32;
-            let raise_floor = if next(2) == 0 { 0 } else { 1 + next(top + 1) };
+            let raise = [Raise::None, Raise::AtHint, Raise::AboveHint][next(3) as usize];
+            let raise_floor = if raise == Raise::None {
+                0
+            } else {
+                1 + next(top + 1)
+            };
             let lanes = if floor == 0 || next(9) == 0 {
                 u32::MAX
             } else {
@@ -95,9 +100,9 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
                 w.hint = hint;
                 w.position_base = (k as u32) << 6;
                 w.room = 8 * width;
-                // Half the windows raise admission in the kernel when the
-                // front reaches `attention`.
-                w.raise = raise_floor != 0;
+                // Two windows in three raise admission in the kernel when
+                // the front reaches `attention`, at or above the hint.
+                w.raise = raise;
                 w.raise_lane = raise_floor.wrapping_sub(1) as u16;
                 w.low = admit;
                 made = k + 1;

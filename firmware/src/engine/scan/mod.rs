@@ -30,7 +30,7 @@
 use super::calibrate::{self, Steps};
 use super::prefilter;
 use super::select::Entry;
-use super::window::OpenWindow;
+use super::window::{OpenWindow, Raise};
 
 /// What the row kernel needs for one camera row (read by the assembly at
 /// these offsets).
@@ -236,7 +236,7 @@ pub unsafe fn row_portable<S: Steps, const CHECK: bool>(args: &mut RowScan) -> R
                     return RowStop::Attention(at);
                 }
                 if window.front_end >= window.attention {
-                    if !window.raise {
+                    if window.raise == Raise::None {
                         return RowStop::Attention(at);
                     }
                     raise_admission(window);
@@ -248,17 +248,18 @@ pub unsafe fn row_portable<S: Steps, const CHECK: bool>(args: &mut RowScan) -> R
     RowStop::Done
 }
 
-/// The kernel's raise of a window's admission to just above its hint, as
-/// prepared by the engine (`OpenWindow::raise`): the back tier dropped,
-/// `low` the hint, strict admission, no further attention.
+/// The kernel's raise of a window's admission to its hint (at or above it,
+/// as `raise` says), as prepared by the engine (`OpenWindow::raise`): the
+/// back tier dropped, `low` the hint, no further attention.
 #[inline(always)]
 fn raise_admission(window: &mut OpenWindow) {
+    let strict = window.raise == Raise::AboveHint;
     let lane = window.raise_lane as u32;
     window.floor = lane + 1;
     window.lanes = lane.wrapping_mul(0x0001_0001);
-    window.admit = window.hint + 1;
+    window.admit = window.hint + strict as i32;
     window.low = window.hint;
-    window.strict = true;
+    window.strict = strict;
     window.back_start = window.buffer + window.capacity as usize * core::mem::size_of::<Entry>();
     window.attention = usize::MAX;
 }

@@ -6,7 +6,7 @@
 use super::Engine;
 use crate::engine::calibrate::raw_floor;
 use crate::engine::select::{Buffer, Entry, Tiers, Ties, WindowRule};
-use crate::engine::window::OpenWindow;
+use crate::engine::window::{OpenWindow, Raise};
 use brightpix_protocol::{Config, SelectionRule};
 
 impl Engine<'_, '_> {
@@ -138,34 +138,53 @@ pub(super) fn admit_at(window: &mut OpenWindow, config: &Config<'_>, max_raw: u1
     window.lanes = floor.wrapping_sub(1).wrapping_mul(0x0001_0001);
 }
 
-/// For `subtract-next`, the row kernel raises admission to just above the
-/// hint when the front reaches `attention`, without stopping: there
-/// `front + hint ties > N` always holds ([`attention`]), which is
-/// [`Tiers::covers_hint`], and strict admission follows at once
-/// (`Tiers::hint_ties_settled`), so [`raise_to_hint`] would do exactly
-/// that: drop the back tier (so only while there are no low ties, which a
-/// compaction may have made), set `low` to the hint, admit `p > hint`.
-/// The copies of the hint in the front are then counted later, when
-/// something needs them (`settle_at_hint`): admission being strict, no
-/// copy arrives after the raise. Not for a raised floor of 0 (every pixel
-/// passes: the general path's), nor for the other rules, whose stop the
-/// engine takes (`Engine::attend`).
+/// For `subtract-next` and `threshold`, the row kernel raises admission to
+/// the hint when the front reaches `attention`, without stopping: there
+/// the front and hint ties always prove the cutoff at or above the hint
+/// ([`attention`]: `front + hint ties > N` for `subtract-next`, `>= N` for
+/// `threshold`, which is [`Tiers::covers_hint`] whatever the front's copies
+/// of the hint), so [`raise_to_hint`] would drop the back tier (so only
+/// while there are no low ties, which a compaction may have made), set
+/// `low` to the hint and admit `p > hint` (`subtract-next`: strict at once,
+/// `Tiers::hint_ties_settled`) or `p >= hint` (`threshold`). The copies of
+/// the hint in the front are then counted later, when something needs them
+/// (`settle_at_hint`). A raised `threshold` window then stays non-strict
+/// (the kernel sets no further attention): its later copies of the hint
+/// are admitted, where the engine's stop once `N` front values were above
+/// the hint made admission strict, which cost a stop in every window to
+/// save a few admissions in some. Not for a window already raised, nor
+/// for a raised floor of 0 (every pixel passes: the general path's), nor
+/// for `subtract-next-distinct` and `subtract-mean`, whose proof needs
+/// the front's copies of the hint counted: their stop the engine takes
+/// (`Engine::attend`).
 #[inline(always)]
 fn prepare_raise(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) {
+    let raise = match config.selection.rule {
+        SelectionRule::SubtractNext => Raise::AboveHint,
+        SelectionRule::Threshold if window.low != window.hint || window.back() != 0 => {
+            Raise::AtHint
+        }
+        _ => Raise::None,
+    };
+    let strict = raise == Raise::AboveHint;
     let mut floor = 0;
     // `hint + 1` must not overflow: the kernel adds without saturating.
-    if config.selection.rule == SelectionRule::SubtractNext
+    if raise != Raise::None
         && !window.strict
         && window.low_ties.count == 0
         && window.capacity > 0
-        && window.hint < i32::MAX
+        && (!strict || window.hint < i32::MAX)
     {
-        floor =
-            raw_floor(&config.calibration, window.bounds, window.hint + 1).min(max_raw as u32 + 1);
+        floor = raw_floor(
+            &config.calibration,
+            window.bounds,
+            window.hint + strict as i32,
+        )
+        .min(max_raw as u32 + 1);
     }
     // A raised floor is at most 2^16 (the camera's largest raw value + 1),
     // so its lane `floor - 1` is a u16.
-    window.raise = floor != 0;
+    window.raise = if floor != 0 { raise } else { Raise::None };
     window.raise_lane = floor.wrapping_sub(1) as u16;
 }
 

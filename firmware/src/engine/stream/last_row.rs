@@ -62,7 +62,7 @@ use super::closed_form::{cutoff_and_moments, weigh};
 use super::{Engine, OutputSink};
 use crate::engine::centroid::{self, Moments, SumsAbove};
 use crate::engine::select::{self, Cut, Entry, Tiers, TooShallow, WindowRule};
-use crate::engine::window::OpenWindow;
+use crate::engine::window::{OpenWindow, Raise};
 use brightpix_protocol::SelectionRule;
 
 /// `OpenWindow::attention` of a window prepared for the last row (never an
@@ -427,7 +427,7 @@ fn lower_hint_to_cutoff(
     // `threshold` not, since fewer than N are above `u`. Admission and
     // attention are the caller's to set.
     window.strict = !threshold;
-    window.raise = false;
+    window.raise = Raise::None;
     Some(u)
 }
 

@@ -6,7 +6,7 @@ use super::admission::{attention, update_admission};
 use super::Engine;
 use crate::engine::centroid::Moments;
 use crate::engine::select::{preferred_capacity, Entry, Ties};
-use crate::engine::window::OpenWindow;
+use crate::engine::window::{OpenWindow, Raise};
 
 impl Engine<'_, '_> {
     /// Whether some window's first row is the current row (most rows open
@@ -140,7 +140,7 @@ impl Engine<'_, '_> {
             *floor = 0;
             *finished = false;
             *strict = false;
-            *raise = false;
+            *raise = Raise::None;
             *rescan = false;
             *bounds = state.bounds;
             *moments = Moments::ZERO;

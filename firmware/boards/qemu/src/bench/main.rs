@@ -381,7 +381,7 @@ fn report(w: &Workload, m: &Measured, core: &str) {
         );
     }
     println!(
-        "BENCH {{\"workload\":\"{}\",\"core\":\"{}\",\"instr_per_px\":{:.3},\"floor_instr_per_px\":{:.3},\"x_floor\":{:.3},\"last_row_instructions\":{:.0},\"floor_last_row_instructions\":{:.0},\"calibrate_all_floor_instr_per_px\":{:.3},\"memory_floor_instr_per_px\":{:.3},\"sort_instr_per_px\":{},\"sort_last_row_instructions\":{},\"pixels\":{},\"frames\":{},\"windows\":{},\"candidates\":{},\"compactions\":{},\"rescans\":{}}}",
+        "BENCH {{\"workload\":\"{}\",\"core\":\"{}\",\"instr_per_px\":{:.3},\"floor_instr_per_px\":{:.3},\"x_floor\":{:.3},\"last_row_instructions\":{:.0},\"floor_last_row_instructions\":{:.0},\"calibrate_all_floor_instr_per_px\":{:.3},\"memory_floor_instr_per_px\":{:.3},\"sort_instr_per_px\":{},\"sort_last_row_instructions\":{},\"pixels\":{},\"frames\":{},\"windows\":{},\"candidates\":{},\"compactions\":{},\"rescans\":{},\"attentions\":{}}}",
         w.name,
         core,
         engine,
@@ -398,7 +398,8 @@ fn report(w: &Workload, m: &Measured, core: &str) {
         m.stats.windows,
         m.stats.candidates,
         m.stats.compactions,
-        m.stats.rescans
+        m.stats.rescans,
+        m.stats.attentions
     );
 }
 
