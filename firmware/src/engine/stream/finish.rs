@@ -7,9 +7,10 @@ use super::admission::settle_at_hint;
 use super::complement::COMPLEMENT;
 use super::last_row::PREPARED;
 use super::{Engine, OutputSink};
+use crate::engine::calibrate::Calibrator;
 use crate::engine::centroid::Moments;
 use crate::engine::select::{self, pack, Cut, Entry, Tiers, WindowRule};
-use crate::engine::window::SubapertureState;
+use crate::engine::window::{OpenWindow, SubapertureState};
 
 impl Engine<'_, '_> {
     /// A window's last pixel has arrived: its result, and what it leaves for
@@ -119,57 +120,67 @@ impl Engine<'_, '_> {
                 None => {
                     self.stats.rescans = self.stats.rescans.wrapping_add(1);
                     let pixels = rule.pixels as usize;
-                    let all = &mut memory.rescan[..pixels];
-                    let width = self.config.camera.width as usize;
-                    let w = window.width as usize;
-                    for j in 0..window.height as usize {
-                        let y = window.y as usize + j;
-                        let pixel = y * width + window.x as usize;
-                        let raw = if self.whole_frame != 0 {
-                            // SAFETY: the frame is whole in the slice of the
-                            // current call to `push` (`whole_frame`), and the
-                            // window lies in it.
-                            unsafe {
-                                core::slice::from_raw_parts(
-                                    (self.whole_frame as *const u16).add(pixel),
-                                    w,
-                                )
-                            }
-                        } else {
-                            let at = (y % self.history_rows) * width + window.x as usize;
-                            &memory.history[at..at + w]
-                        };
-                        let row = &mut self.calibrated[..w];
-                        self.calibrator.calibrate(raw, pixel, row);
-                        for (i, (e, &p)) in all[j * w..(j + 1) * w]
-                            .iter_mut()
-                            .zip(row.iter())
-                            .enumerate()
-                        {
-                            *e = Entry {
-                                value: p,
-                                position: pack(i as u16, j as u16) as u32,
-                            };
-                        }
-                    }
+                    let rows = WindowRows {
+                        history: memory.history,
+                        history_rows: self.history_rows,
+                        whole_frame: self.whole_frame,
+                        width: self.config.camera.width as usize,
+                    };
+                    // First the pixels at or above a bound below `low` (the
+                    // cutoff is below it, usually by less than the margin
+                    // again), cut as the candidates of a window raised to
+                    // that bound, which holds if it is `Ok`; else every
+                    // pixel, calibrated again.
+                    let bound = rescan_bound(window.low, window.hint);
+                    let (kept, at_bound) = rows.candidates(
+                        window,
+                        &self.calibrator,
+                        &mut self.calibrated,
+                        bound,
+                        memory.rescan,
+                    );
                     let mut tiers = Tiers {
-                        front: all,
-                        front_at_hint: 0,
-                        hint: i32::MIN,
+                        front: &memory.rescan[..kept],
+                        front_at_hint: at_bound,
+                        hint: bound,
                         hint_ties: 0,
                         back: &[],
-                        low: i32::MIN,
+                        low: bound,
                         low_ties: 0,
-                        complete: true,
+                        complete: kept == pixels,
                         scratch: memory.scratch,
                     };
-                    // Complete candidates always cut (N < pixels); the
-                    // fallback keeps nothing and is never taken.
-                    let cut = select::cut(&rule, &mut tiers).unwrap_or(KEEPS_NOTHING);
+                    let (cut, kept) = match select::cut(&rule, &mut tiers) {
+                        Ok(cut) => (cut, kept),
+                        Err(_) => {
+                            rows.candidates(
+                                window,
+                                &self.calibrator,
+                                &mut self.calibrated,
+                                i32::MIN,
+                                memory.rescan,
+                            );
+                            let mut tiers = Tiers {
+                                front: &memory.rescan[..pixels],
+                                front_at_hint: 0,
+                                hint: i32::MIN,
+                                hint_ties: 0,
+                                back: &[],
+                                low: i32::MIN,
+                                low_ties: 0,
+                                complete: true,
+                                scratch: memory.scratch,
+                            };
+                            // Complete candidates always cut (N < pixels);
+                            // the fallback keeps nothing and is never taken.
+                            let cut = select::cut(&rule, &mut tiers).unwrap_or(KEEPS_NOTHING);
+                            (cut, pixels)
+                        }
+                    };
                     let level = level(&cut, state);
                     state.seed.observe(cut.cutoff, too_high);
                     let mut moments = Moments::ZERO;
-                    select::add_moments(&mut moments, &cut, level, all);
+                    select::add_moments(&mut moments, &cut, level, &memory.rescan[..kept]);
                     moments
                 }
             }
@@ -180,6 +191,69 @@ impl Engine<'_, '_> {
             window.width,
             window.height,
         ));
+    }
+}
+
+/// Where a rescan looks first: as far below `low` as the seed's margin
+/// (`hint - low`) twice, and one more (a window whose seed was too high
+/// usually missed its cutoff by less than that).
+#[inline(always)]
+fn rescan_bound(low: i32, hint: i32) -> i32 {
+    let margin = hint.saturating_sub(low).max(0);
+    low.saturating_sub(margin.saturating_mul(2))
+        .saturating_sub(1)
+}
+
+/// Where a rescanned window's raw pixels are: the frame pushed whole, or
+/// the engine's row history.
+struct WindowRows<'h> {
+    history: &'h [u16],
+    history_rows: usize,
+    whole_frame: usize,
+    width: usize,
+}
+
+impl WindowRows<'_> {
+    /// The window's pixels at or above `bound`, calibrated, into the first
+    /// entries of `out` (with their positions), row after row; their number
+    /// and how many equal `bound`.
+    fn candidates(
+        &self,
+        window: &OpenWindow,
+        calibrator: &Calibrator<'_>,
+        row: &mut [i32],
+        bound: i32,
+        out: &mut [Entry],
+    ) -> (usize, u16) {
+        let (x, w) = (window.x as usize, window.width as usize);
+        let (mut kept, mut at_bound) = (0, 0u16);
+        for j in 0..window.height as usize {
+            let y = window.y as usize + j;
+            let pixel = y * self.width + x;
+            let raw = if self.whole_frame != 0 {
+                // SAFETY: the frame is whole in the slice of the current
+                // call to `push` (`whole_frame`), and the window lies in it.
+                unsafe {
+                    core::slice::from_raw_parts((self.whole_frame as *const u16).add(pixel), w)
+                }
+            } else {
+                let at = (y % self.history_rows) * self.width + x;
+                &self.history[at..at + w]
+            };
+            let row = &mut row[..w];
+            calibrator.calibrate(raw, pixel, row);
+            for (i, &p) in row.iter().enumerate() {
+                if p >= bound {
+                    out[kept] = Entry {
+                        value: p,
+                        position: pack(i as u16, j as u16) as u32,
+                    };
+                    kept += 1;
+                    at_bound += (p == bound) as u16;
+                }
+            }
+        }
+        (kept, at_bound)
     }
 }
 
