@@ -37,19 +37,42 @@ impl SubapertureState {
 const ENTRY: usize = core::mem::size_of::<Entry>();
 
 /// What the row kernel does when a window's front reaches `attention`
-/// (`OpenWindow::raise`). Its value minus one is the raised admission's
-/// strictness, which the kernel's assembly uses as such: `admit = hint +
-/// (raise - 1)`, `strict = raise - 1`.
-#[repr(u8)]
+/// (`OpenWindow::raise`), in the byte its assembly reads:
+/// - 0 ([`Raise::NONE`]): stop, for the engine (`Engine::attend`);
+/// - 1 and 2 ([`Raise::AT_HINT`], [`Raise::ABOVE_HINT`]): raise admission
+///   to the hint, `admit = hint + (raise - 1)`, `strict = raise - 1`;
+/// - `2 + c` ([`Raise::counting`]`(c)`, `c` in 1..=16): first count the
+///   front's copies of the hint that arrived since the last count
+///   (`at_hint`, `counted`), then, if N front values are above the hint
+///   and the hint has `c` copies (with its ties), raise as `ABOVE_HINT`,
+///   else set the next `attention` (`stream::admission::attention`).
+#[repr(transparent)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Raise {
-    /// Stop, for the engine (`Engine::attend`).
-    None = 0,
+pub struct Raise(u8);
+
+impl Raise {
+    pub const NONE: Raise = Raise(0);
     /// Admit `p >= hint` (`threshold`: `v(N)` may be the hint, whose
     /// copies are then kept).
-    AtHint = 1,
+    pub const AT_HINT: Raise = Raise(1);
     /// Admit `p > hint` (`subtract-next`: strict at once).
-    AboveHint = 2,
+    pub const ABOVE_HINT: Raise = Raise(2);
+
+    /// Count the hint's copies first and raise once N front values are
+    /// above it and it has `copies` (1 to 16) copies
+    /// (`subtract-next-distinct`: 1; `subtract-mean`: M).
+    pub const fn counting(copies: u8) -> Raise {
+        Raise(2 + copies)
+    }
+
+    /// The copies a counting raise needs; `None` for the others.
+    pub const fn copies(self) -> Option<u8> {
+        if self.0 > 2 {
+            Some(self.0 - 2)
+        } else {
+            None
+        }
+    }
 }
 
 /// A window that has started receiving pixels in this frame.
@@ -187,7 +210,7 @@ impl OpenWindow {
         floor: 0,
         finished: true,
         strict: false,
-        raise: Raise::None,
+        raise: Raise::NONE,
         rescan: false,
         bounds: WindowBounds::NONE,
         moments: Moments::ZERO,

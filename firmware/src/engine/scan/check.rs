@@ -79,8 +79,17 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
             let floor = next(top + 2);
             let admit = next(16 * top) as i32 - (16 * top / 4) as i32;
             let hint = admit + next(16 * top / 2 + 1) as i32;
-            let raise = [Raise::None, Raise::AtHint, Raise::AboveHint][next(3) as usize];
-            let raise_floor = if raise == Raise::None {
+            let raise = match next(4) {
+                0 => Raise::NONE,
+                1 => Raise::AT_HINT,
+                2 => Raise::ABOVE_HINT,
+                // Often few copies, where the proof turns on one.
+                _ => {
+                    let most = if next(2) == 0 { 3 } else { 16 };
+                    Raise::counting(1 + next(most) as u8)
+                }
+            };
+            let raise_floor = if raise == Raise::NONE {
                 0
             } else {
                 1 + next(top + 1)
@@ -100,8 +109,9 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
                 w.hint = hint;
                 w.position_base = (k as u32) << 6;
                 w.room = 8 * width;
-                // Two windows in three raise admission in the kernel when
-                // the front reaches `attention`, at or above the hint.
+                // Three windows in four raise admission in the kernel when
+                // the front reaches `attention`, at or above the hint, or
+                // after counting the hint's copies.
                 w.raise = raise;
                 w.raise_lane = raise_floor.wrapping_sub(1) as u16;
                 w.low = admit;
@@ -133,6 +143,40 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
         }
         for buffer in buffers.iter_mut() {
             buffer.fill(Entry::ZERO);
+        }
+        // What a counting raise reads: N, the hint's ties, the front's
+        // entries (copies of the hint among them) and how many were
+        // counted, with how many copies.
+        for k in 0..made {
+            let most = if next(2) == 0 { 8 } else { share as u32 + 1 };
+            let n = next(most) as u16;
+            let ties = next(3) as u16;
+            let front = windows[0][k].front();
+            let counted = next(front as u32 + 1) as usize;
+            let values: [i32; SHARE] =
+                core::array::from_fn(|_| windows[0][k].hint + next(4) as i32);
+            let at_hint = values[..counted]
+                .iter()
+                .filter(|&&v| v == windows[0][k].hint)
+                .count() as u16;
+            for copies in windows.iter_mut() {
+                let w = &mut copies[k];
+                w.n = n;
+                w.hint_ties.count = ties;
+                w.counted = counted as u16;
+                w.at_hint = at_hint;
+                for (e, &value) in (0..front).zip(values.iter()) {
+                    // SAFETY: the window's own front entries.
+                    unsafe {
+                        ((w.buffer + e * core::mem::size_of::<Entry>()) as *mut Entry).write(
+                            Entry {
+                                value,
+                                position: e as u32,
+                            },
+                        )
+                    };
+                }
+            }
         }
         let run = |windows: &mut [OpenWindow], twin: bool| {
             let map = with_background.then_some(&background[..]);
@@ -205,6 +249,8 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
             // the buffer: the twin's and the kernel's buffers differ).
             let raised = |w: &OpenWindow| {
                 (
+                    w.at_hint,
+                    w.counted,
                     w.floor,
                     w.lanes,
                     w.admit,

@@ -236,10 +236,14 @@ macro_rules! kernel {
                 // The front reached `attention`: the raise, if the engine
                 // prepared it (see `raise_admission`), else a stop.
                 // `raise - 1` is the raised admission's strictness
-                // (`Raise`): `admit = hint + strict`.
+                // (`Raise`): `admit = hint + strict`; from 3 on, a
+                // counting raise (70:).
                 "ldrb r0, [lr, #{raise}]",
                 "cbz r0, 18f",
+                "cmp r0, #3",
+                "bhs 70f",
                 "subs r0, #1",
+                "71:",
                 "strb r0, [lr, #{strict}]",
                 "ldr r3, [lr, #{hint}]",
                 "str r3, [lr, #{low}]",
@@ -260,6 +264,58 @@ macro_rules! kernel {
                 "18:",
                 "mov r0, lr",
                 "b 81b",
+                // A counting raise (`count_and_prove`; r4-r9 are free
+                // here, the next window reloads them): the front's copies
+                // of the hint since `counted` added to `at_hint` (r7),
+                // then the proof (N above the hint, `raise - 2` copies
+                // with its ties) or the next attention.
+                "70:",
+                "sub r8, r0, #2",
+                "ldr r4, [lr, #{buffer}]",
+                "ldrh r0, [lr, #{counted}]",
+                "add r5, r4, r0, lsl #3",
+                "ldr r6, [lr, #{hint}]",
+                "ldrh r7, [lr, #{at_hint}]",
+                "cmp r5, r10",
+                "bhs 73f",
+                "72:",
+                "ldr r3, [r5], #8",
+                "cmp r3, r6",
+                "it eq",
+                "addeq r7, r7, #1",
+                "cmp r5, r10",
+                "blo 72b",
+                "73:",
+                "strh r7, [lr, #{at_hint}]",
+                "sub r0, r10, r4",
+                "lsrs r0, r0, #3",
+                "strh r0, [lr, #{counted}]",
+                "sub r3, r0, r7",
+                "ldrh r5, [lr, #{n}]",
+                "ldrh r6, [lr, #{hint_ties}]",
+                "add r6, r6, r7",
+                "cmp r3, r5",
+                "blo 74f",
+                "cmp r6, r8",
+                "bhs 75f",
+                // Not proved: attention at N + at_hint + the copies still
+                // needed entries, and past the front.
+                "74:",
+                "subs r8, r8, r6",
+                "it lo",
+                "movlo r8, #0",
+                "add r8, r8, r5",
+                "add r8, r8, r7",
+                "adds r0, #1",
+                "cmp r8, r0",
+                "it lo",
+                "movlo r8, r0",
+                "add r8, r4, r8, lsl #3",
+                "str r8, [lr, #{attention}]",
+                "b 1b",
+                "75:",
+                "movs r0, #1",
+                "b 71b",
                 // Out of range: the pixel's address, and the window
                 // tagged.
                 "90:",
@@ -288,6 +344,10 @@ macro_rules! kernel {
                 front_end = const offset_of!(OpenWindow, front_end),
                 hint = const offset_of!(OpenWindow, hint),
                 attention = const offset_of!(OpenWindow, attention),
+                counted = const offset_of!(OpenWindow, counted),
+                at_hint = const offset_of!(OpenWindow, at_hint),
+                n = const offset_of!(OpenWindow, n),
+                hint_ties = const offset_of!(OpenWindow, hint_ties.count),
                 room = const offset_of!(OpenWindow, room),
                 raise = const offset_of!(OpenWindow, raise),
                 raise_lane = const offset_of!(OpenWindow, raise_lane),

@@ -236,10 +236,18 @@ pub unsafe fn row_portable<S: Steps, const CHECK: bool>(args: &mut RowScan) -> R
                     return RowStop::Attention(at);
                 }
                 if window.front_end >= window.attention {
-                    if window.raise == Raise::None {
+                    if window.raise == Raise::NONE {
                         return RowStop::Attention(at);
                     }
-                    raise_admission(window);
+                    // A counting raise that does not prove sets the
+                    // next attention instead.
+                    let proved = match window.raise.copies() {
+                        Some(copies) => count_and_prove(window, copies),
+                        None => true,
+                    };
+                    if proved {
+                        raise_admission(window);
+                    }
                 }
             }
         }
@@ -248,12 +256,12 @@ pub unsafe fn row_portable<S: Steps, const CHECK: bool>(args: &mut RowScan) -> R
     RowStop::Done
 }
 
-/// The kernel's raise of a window's admission to its hint (at or above it,
-/// as `raise` says), as prepared by the engine (`OpenWindow::raise`): the
+/// The kernel's raise of a window's admission to its hint (at it for
+/// `Raise::AT_HINT`, else above it), as prepared by the engine (`OpenWindow::raise`): the
 /// back tier dropped, `low` the hint, no further attention.
 #[inline(always)]
 fn raise_admission(window: &mut OpenWindow) {
-    let strict = window.raise == Raise::AboveHint;
+    let strict = window.raise != Raise::AT_HINT;
     let lane = window.raise_lane as u32;
     window.floor = lane + 1;
     window.lanes = lane.wrapping_mul(0x0001_0001);
@@ -262,6 +270,35 @@ fn raise_admission(window: &mut OpenWindow) {
     window.strict = strict;
     window.back_start = window.buffer + window.capacity as usize * core::mem::size_of::<Entry>();
     window.attention = usize::MAX;
+}
+
+/// A counting raise (`Raise::counting`): the front's copies of the hint
+/// since the last count added to `at_hint`; `true` if N front values are
+/// above the hint and it has `copies` copies (with its ties), else the
+/// window's next `attention` (`stream::admission::attention`'s for these
+/// rules) set.
+#[inline(always)]
+fn count_and_prove(window: &mut OpenWindow, copies: u8) -> bool {
+    const ENTRY: usize = core::mem::size_of::<Entry>();
+    let front = (window.front_end - window.buffer) / ENTRY;
+    let mut at = window.buffer + window.counted as usize * ENTRY;
+    let mut at_hint = window.at_hint as usize;
+    while at < window.front_end {
+        // SAFETY: between the buffer's start and the front's end: the
+        // window's live front entries.
+        let value = unsafe { (at as *const Entry).read().value };
+        at_hint += (value == window.hint) as usize;
+        at += ENTRY;
+    }
+    window.at_hint = at_hint as u16;
+    window.counted = front as u16;
+    let (n, have) = (window.n as usize, at_hint + window.hint_ties.count as usize);
+    if front - at_hint >= n && have >= copies as usize {
+        return true;
+    }
+    let fewest = n + at_hint + (copies as usize).saturating_sub(have);
+    window.attention = window.buffer + fewest.max(front + 1) * ENTRY;
+    false
 }
 
 /// The pixels of `raw` (at most 64) above `lanes`' low half, as a bit

@@ -138,38 +138,46 @@ pub(super) fn admit_at(window: &mut OpenWindow, config: &Config<'_>, max_raw: u1
     window.lanes = floor.wrapping_sub(1).wrapping_mul(0x0001_0001);
 }
 
-/// For `subtract-next` and `threshold`, the row kernel raises admission to
-/// the hint when the front reaches `attention`, without stopping: there
-/// the front and hint ties always prove the cutoff at or above the hint
-/// ([`attention`]: `front + hint ties > N` for `subtract-next`, `>= N` for
-/// `threshold`, which is [`Tiers::covers_hint`] whatever the front's copies
-/// of the hint), so [`raise_to_hint`] would drop the back tier (so only
-/// while there are no low ties, which a compaction may have made), set
-/// `low` to the hint and admit `p > hint` (`subtract-next`: strict at once,
-/// `Tiers::hint_ties_settled`) or `p >= hint` (`threshold`). The copies of
-/// the hint in the front are then counted later, when something needs them
-/// (`settle_at_hint`). A raised `threshold` window then stays non-strict
-/// (the kernel sets no further attention): its later copies of the hint
-/// are admitted, where the engine's stop once `N` front values were above
-/// the hint made admission strict, which cost a stop in every window to
-/// save a few admissions in some. Not for a window already raised, nor
-/// for a raised floor of 0 (every pixel passes: the general path's), nor
-/// for `subtract-next-distinct` and `subtract-mean`, whose proof needs
-/// the front's copies of the hint counted: their stop the engine takes
-/// (`Engine::attend`).
+/// When the front reaches `attention`, the row kernel raises admission to
+/// the hint itself, without stopping, where the proof of the cutoff at or
+/// above the hint ([`Tiers::covers_hint`]) is one it can make:
+/// - `subtract-next` and `threshold`: reaching [`attention`] is the proof
+///   (`front + hint ties > N`, `>= N`, whatever the front's copies of the
+///   hint), so [`raise_to_hint`] would drop the back tier (so only while
+///   there are no low ties, which a compaction may have made), set `low`
+///   to the hint and admit `p > hint` (`subtract-next`: strict at once,
+///   `Tiers::hint_ties_settled`) or `p >= hint` (`threshold`). The copies
+///   of the hint in the front are then counted later, when something needs
+///   them (`settle_at_hint`). A raised `threshold` window then stays
+///   non-strict (the kernel sets no further attention): its later copies
+///   of the hint are admitted, where the engine's stop once `N` front
+///   values were above the hint made admission strict, which cost a stop
+///   in every window to save a few admissions in some; so not for a window
+///   already raised.
+/// - `subtract-next-distinct` and `subtract-mean`: the proof needs N front
+///   values above the hint and one copy of it (M for the mean), so the
+///   kernel counts the front's copies that arrived since the last count
+///   (`settle_at_hint`'s count) and raises to `p > hint` if they prove
+///   it, else sets the next attention as [`attention`] would: what
+///   `Engine::attend` did, without leaving the kernel.
+///
+/// Not for a raised floor of 0 (every pixel passes: the general path's).
 #[inline(always)]
 fn prepare_raise(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) {
     let raise = match config.selection.rule {
-        SelectionRule::SubtractNext => Raise::AboveHint,
+        SelectionRule::SubtractNext => Raise::ABOVE_HINT,
         SelectionRule::Threshold if window.low != window.hint || window.back() != 0 => {
-            Raise::AtHint
+            Raise::AT_HINT
         }
-        _ => Raise::None,
+        SelectionRule::Threshold => Raise::NONE,
+        SelectionRule::SubtractNextDistinct => Raise::counting(1),
+        // M is 1..=16 (`Config::validate`).
+        SelectionRule::SubtractMean { count } => Raise::counting(count as u8),
     };
-    let strict = raise == Raise::AboveHint;
+    let strict = raise != Raise::AT_HINT;
     let mut floor = 0;
     // `hint + 1` must not overflow: the kernel adds without saturating.
-    if raise != Raise::None
+    if raise != Raise::NONE
         && !window.strict
         && window.low_ties.count == 0
         && window.capacity > 0
@@ -184,7 +192,7 @@ fn prepare_raise(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) {
     }
     // A raised floor is at most 2^16 (the camera's largest raw value + 1),
     // so its lane `floor - 1` is a u16.
-    window.raise = if floor != 0 { raise } else { Raise::None };
+    window.raise = if floor != 0 { raise } else { Raise::NONE };
     window.raise_lane = floor.wrapping_sub(1) as u16;
 }
 

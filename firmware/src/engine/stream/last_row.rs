@@ -427,7 +427,7 @@ fn lower_hint_to_cutoff(
     // `threshold` not, since fewer than N are above `u`. Admission and
     // attention are the caller's to set.
     window.strict = !threshold;
-    window.raise = Raise::None;
+    window.raise = Raise::NONE;
     Some(u)
 }
 

@@ -102,7 +102,8 @@ pub struct EngineStats {
     pub rescans: u32,
     /// Times the row kernel stopped at a window for the engine's
     /// attention (`Engine::attend`). Not the raises to the hint the kernel
-    /// does itself (`subtract-next`, `threshold`: see `OpenWindow::raise`).
+    /// does itself, nor its counts of the hint's copies
+    /// (`OpenWindow::raise`).
     pub attentions: u32,
     /// Frames in which the row kernel (`scan::row`, the assembly routine
     /// on Cortex-M) ran at least once, whole or abandoned, the frame in

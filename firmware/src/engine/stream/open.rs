@@ -140,7 +140,7 @@ impl Engine<'_, '_> {
             *floor = 0;
             *finished = false;
             *strict = false;
-            *raise = Raise::None;
+            *raise = Raise::NONE;
             *rescan = false;
             *bounds = state.bounds;
             *moments = Moments::ZERO;
