@@ -257,8 +257,9 @@ pub unsafe fn row_portable<S: Steps, const CHECK: bool>(args: &mut RowScan) -> R
 }
 
 /// The kernel's raise of a window's admission to its hint (at it for
-/// `Raise::AT_HINT`, else above it), as prepared by the engine (`OpenWindow::raise`): the
-/// back tier dropped, `low` the hint, no further attention.
+/// `Raise::AT_HINT`, else above it), as prepared by the engine
+/// (`OpenWindow::raise`): the back tier dropped, `low` the hint, no
+/// further attention.
 #[inline(always)]
 fn raise_admission(window: &mut OpenWindow) {
     let strict = window.raise != Raise::AT_HINT;
