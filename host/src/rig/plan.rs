@@ -59,16 +59,16 @@ pub struct CostModel {
 }
 
 impl CostModel {
-    /// Cortex-M4: CANARY 14.35 instr/px, 8x8 windows 33.43, last row 3,490.
-    pub const CORTEX_M4: CostModel = CostModel::fit(14.35, 33.43, 3490.0);
-    /// Cortex-M7: CANARY 14.25 instr/px, 8x8 windows 33.22, last row 3,462.
-    pub const CORTEX_M7: CostModel = CostModel::fit(14.25, 33.22, 3462.0);
+    /// Cortex-M4: CANARY 14.28 instr/px, 8x8 windows 33.41, last row 3,491.
+    pub const CORTEX_M4: CostModel = CostModel::fit(14.28, 33.41, 3491.0);
+    /// Cortex-M7: CANARY 14.18 instr/px, 8x8 windows 33.20, last row 3,462.
+    pub const CORTEX_M7: CostModel = CostModel::fit(14.18, 33.20, 3462.0);
     /// The STM32H743 (Cortex-M7) with its DCMI's 12-bit runs: the bench's
-    /// `canary-12bit-runs-512` row (14.65 instr/px, last row 5,978) against
-    /// its whole-row CANARY (14.25, 3,462) adds 0.40 instructions a pixel
+    /// `canary-12bit-runs-512` row (14.57 instr/px, last row 5,978) against
+    /// its whole-row CANARY (14.18, 3,462) adds 0.39 instructions a pixel
     /// and 2,516 after the last pixel to the Cortex-M7's model.
     pub const STM32H743: CostModel =
-        CostModel::CORTEX_M7.with_camera_runs(14.25, 3462.0, 14.65, 5978.0);
+        CostModel::CORTEX_M7.with_camera_runs(14.18, 3462.0, 14.57, 5978.0);
 
     /// The model through the bench's two rows (see the type's documentation).
     pub const fn fit(canary: f64, windows_8x8: f64, canary_last_row: f64) -> CostModel {
