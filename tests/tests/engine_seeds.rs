@@ -366,3 +366,38 @@ fn a_steady_spot_keeps_few_candidates() {
         "{per_window:.1} candidates per window of {pixels} pixels at N = 20"
     );
 }
+
+/// The seed's margin (speed only): a steady cutoff admits one whole count
+/// below it next frame (without a gain map calibrated values of a window
+/// differ by whole counts, 16 units, so a narrower margin admits nothing
+/// below the hint and any fall of the cutoff costs a rescan) and not two;
+/// a cutoff that moved by 4 counts widens it; a seed that was too high
+/// widens it further.
+#[test]
+fn the_seed_margin_follows_the_cutoffs_moves() {
+    use brightpix_firmware::engine::seed::Seed;
+    let margin = |seed: &Seed| {
+        let (hint, low) = seed.thresholds();
+        hint - low
+    };
+    let mut steady = Seed::RESET;
+    assert_eq!(steady.thresholds(), (i32::MIN, i32::MIN));
+    for _ in 0..400 {
+        steady.observe(1_000, false);
+    }
+    assert_eq!(steady.thresholds().0, 1_000);
+    assert!((16..32).contains(&margin(&steady)), "{}", margin(&steady));
+
+    let mut moving = steady;
+    moving.observe(1_000 - 64, false);
+    let after_move = margin(&moving);
+    assert!(after_move > margin(&steady), "{after_move}");
+    let mut too_high = steady;
+    too_high.observe(1_000 - 64, true);
+    assert!(margin(&too_high) > after_move);
+    // The move is forgotten slowly: still wider after 20 steady frames.
+    for _ in 0..20 {
+        moving.observe(1_000 - 64, false);
+    }
+    assert!(margin(&moving) > margin(&steady));
+}
