@@ -147,13 +147,13 @@ fn dsp_selftest() {
         if floor::read_every_pixel(run) != floor::read_every_pixel_portable(run) {
             fail("the memory floor differs from its portable twin");
         }
-        let mut words = [0u32; 33];
-        let mut twin = [0u32; 33];
+        let mut words = [0u32; 71];
+        let mut twin = [0u32; 71];
         for w in words.iter_mut() {
             *w = (rng.next() * 4e9) as u32;
         }
         let n = round % words.len();
-        let mut copied = [0u32; 33];
+        let mut copied = [0u32; 71];
         copy_words(&words[..n], &mut copied[..n]);
         copy_words_portable(&words[..n], &mut twin[..n]);
         if copied != twin {
