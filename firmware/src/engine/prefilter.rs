@@ -116,7 +116,7 @@ mod sse2 {
 /// compiler unrolled it and computed its trip counts at the start of every
 /// push (CANARY on Cortex-M4 15.11 against 15.00 instructions a pixel); four
 /// registers a transfer instead of eight cost CANARY 0.13 instructions a
-/// pixel more (13.37 against 13.23), every row-pushed workload alike.
+/// pixel more (13.37 against 13.22), every row-pushed workload alike.
 /// [`copy_words_portable`] is its twin, which the QEMU benchmark's
 /// self-test compares it with on every length up to 70 words.
 #[inline(always)]

@@ -59,16 +59,16 @@ pub struct CostModel {
 }
 
 impl CostModel {
-    /// Cortex-M4: CANARY 13.37 instr/px, 8x8 windows 32.98, last row 3,323.
-    pub const CORTEX_M4: CostModel = CostModel::fit(13.37, 32.98, 3323.0);
-    /// Cortex-M7: CANARY 13.28 instr/px, 8x8 windows 32.77, last row 3,312.
-    pub const CORTEX_M7: CostModel = CostModel::fit(13.28, 32.77, 3312.0);
+    /// Cortex-M4: CANARY 13.22 instr/px, 8x8 windows 32.84, last row 3,307.
+    pub const CORTEX_M4: CostModel = CostModel::fit(13.22, 32.84, 3307.0);
+    /// Cortex-M7: CANARY 13.16 instr/px, 8x8 windows 32.65, last row 3,293.
+    pub const CORTEX_M7: CostModel = CostModel::fit(13.16, 32.65, 3293.0);
     /// The STM32H743 (Cortex-M7) with its DCMI's 12-bit runs: the bench's
-    /// `canary-12bit-runs-512` row (13.62 instr/px, last row 5,587) against
-    /// its whole-row CANARY (13.28, 3,312) adds 0.34 instructions a pixel
-    /// and 2,275 after the last pixel to the Cortex-M7's model.
+    /// `canary-12bit-runs-512` row (13.48 instr/px, last row 5,520) against
+    /// its whole-row CANARY (13.16, 3,293) adds 0.32 instructions a pixel
+    /// and 2,227 after the last pixel to the Cortex-M7's model.
     pub const STM32H743: CostModel =
-        CostModel::CORTEX_M7.with_camera_runs(13.28, 3312.0, 13.62, 5587.0);
+        CostModel::CORTEX_M7.with_camera_runs(13.16, 3293.0, 13.48, 5520.0);
 
     /// The model through the bench's two rows (see the type's documentation).
     pub const fn fit(canary: f64, windows_8x8: f64, canary_last_row: f64) -> CostModel {
