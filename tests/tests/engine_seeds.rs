@@ -371,8 +371,9 @@ fn a_steady_spot_keeps_few_candidates() {
 /// below it next frame (without a gain map calibrated values of a window
 /// differ by whole counts, 16 units, so a narrower margin admits nothing
 /// below the hint and any fall of the cutoff costs a rescan) and not two;
-/// a cutoff that fell by 4 counts widens it to at least half that; a seed
-/// that was too high widens it further.
+/// a cutoff that fell by 4 counts widens it to at least half that, one that
+/// fell by 40 to more than that; a seed that was too high widens it
+/// further.
 #[test]
 fn the_seed_margin_follows_the_cutoffs_moves() {
     use brightpix_firmware::engine::seed::Seed;
@@ -399,6 +400,11 @@ fn the_seed_margin_follows_the_cutoffs_moves() {
     let mut too_high = steady;
     too_high.observe(1_000 - 64, true);
     assert!(margin(&too_high) > after_move);
+    // A fall of 40 counts (a bright spot's): wider than the fall, since
+    // a bright window's levels are sparse and a rescan costs more.
+    let mut bright = steady;
+    bright.observe(1_000 - 640, false);
+    assert!(margin(&bright) > 640, "{}", margin(&bright));
     // The move is forgotten slowly: still wider after 20 steady frames.
     for _ in 0..20 {
         moving.observe(1_000 - 64, false);

@@ -31,15 +31,22 @@ const DECAY_BITS: u32 = 5;
 /// counts without a gain map, so a margin below 16 admits nothing below the
 /// hint, and any fall of the cutoff costs a rescan.
 ///
-/// Chosen on the QEMU bench (Cortex-M4, instructions a pixel; its frames
-/// and two other generator seeds): the previous margin, one and a half
-/// times the spread plus 1/16 count, admitted ~27 pixels a CANARY window
-/// below the hint that the raise then dropped. Half the spread plus
-/// 20/16 counts: CANARY subtract-next 14.28 -> 13.37 (other seeds 13.82 ->
-/// 13.17, 14.63 -> 13.39), no workload slower on any of the three seeds;
-/// with 16/16, N = 5 was 0.22 slower on one; with a quarter of the spread,
-/// several up to 0.95 slower (more rescans).
+/// The margin is this plus half the spread up to `KNEE` and one and a half
+/// times it beyond. Chosen on the QEMU bench (Cortex-M4, instructions a
+/// pixel) on its faint spots (a peak of ~14 counts over +-3 of noise, where
+/// one count level holds ~20 pixels of a window, so each level of margin
+/// costs ~20 admissions) and on spots 10 and 30 times brighter (where
+/// levels are sparse and a rescan costs more than a wide margin). The
+/// previous margin, one and a half times the spread plus 1/16 count:
+/// CANARY subtract-next 14.13 faint, 11.63 and 11.98 bright; half the
+/// spread plus 20/16 everywhere: 13.22 faint but 12.72 and 13.98 bright;
+/// this: 13.37, 11.90 and 12.01 (faint, two other generator seeds: 13.68
+/// -> 13.14, 14.49 -> 13.47).
 const MARGIN_FLOOR: i32 = 20;
+
+/// Up to this spread (in calibrated units, 3 counts) the margin follows
+/// half of it; see [`MARGIN_FLOOR`].
+const KNEE: i32 = 48;
 
 /// The spread a sub-aperture starts with, before its cutoff has moved:
 /// one count.
@@ -63,10 +70,12 @@ impl Seed {
         if previous == NONE {
             return (NONE, NONE);
         }
-        // Half the largest recent change, plus a count and a quarter
-        // (`MARGIN_FLOOR`). Saturating: a cutoff is below 2^26 in
-        // magnitude, the spread below 2^30.
-        let margin = (self.spread >> 5).saturating_add(MARGIN_FLOOR);
+        // Half the largest recent change up to `KNEE`, one and a half times
+        // it beyond, plus a count and a quarter (`MARGIN_FLOOR`).
+        // Saturating: a cutoff is below 2^26 in magnitude, the spread below
+        // 2^30.
+        let spread = self.spread >> 4;
+        let margin = (spread + (spread >> 1) - spread.min(KNEE)).saturating_add(MARGIN_FLOOR);
         (previous, previous.saturating_sub(margin))
     }
 
