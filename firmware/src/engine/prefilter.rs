@@ -306,7 +306,6 @@ mod dsp {
                 n = inout(reg) n => _,
                 lanes = in(reg) lanes,
                 out("r2") _, out("r3") _, out("r4") _, out("r5") _,
-            out("r8") _, out("r10") _, out("r11") _, out("r12") _,
                 options(nostack, readonly),
             );
         }
