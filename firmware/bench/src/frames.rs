@@ -61,8 +61,15 @@ pub const MAX_CLOSED_LOOP_WINDOWS: usize = 256;
 pub fn background_pattern(x: usize, y: usize) -> i32 {
     ((x * 7 + y * 13) % 5) as i32 - 2
 }
-/// 200 photons / (2 pi sigma^2), sigma^2 = 2.25.
-const PEAK: f32 = 200.0 / (2.0 * core::f32::consts::PI * 2.25);
+/// Photons in a spot by default: a faint guide star, the paper's regime
+/// (peak ~14 counts over +-3 of noise).
+pub const DEFAULT_FLUX: f32 = 200.0;
+
+/// A Gaussian spot's peak for `flux` photons: flux / (2 pi sigma^2),
+/// sigma^2 = 2.25.
+fn peak(flux: f32) -> f32 {
+    flux / (2.0 * core::f32::consts::PI * 2.25)
+}
 
 /// xorshift64.
 pub struct Rng(u64);
@@ -90,6 +97,8 @@ pub struct Generator {
     pattern: Pattern,
     /// Peak-to-peak amplitude of the uniform noise, counts.
     noise: f32,
+    /// A spot's peak above the background, counts.
+    peak: f32,
     /// Whether the background has [`background_pattern`].
     patterned: bool,
     /// Spot centres of the current row of windows.
@@ -111,6 +120,7 @@ impl Generator {
             grid,
             pattern,
             noise: 6.0,
+            peak: peak(DEFAULT_FLUX),
             patterned: false,
             centres: [(0.0, 0.0); 128],
             offsets: [(0.0, 0.0); MAX_CLOSED_LOOP_WINDOWS],
@@ -121,6 +131,12 @@ impl Generator {
     /// Uniform noise of `peak_to_peak` counts (6 by default: +-3).
     pub fn with_noise(mut self, peak_to_peak: f32) -> Self {
         self.noise = peak_to_peak;
+        self
+    }
+
+    /// Spots of `photons` in all ([`DEFAULT_FLUX`] by default).
+    pub fn with_flux(mut self, photons: f32) -> Self {
+        self.peak = peak(photons);
         self
     }
 
@@ -167,7 +183,7 @@ impl Generator {
         if j == 0 && matches!(self.pattern, Pattern::Spots | Pattern::ClosedLoopSpots) {
             self.place_spots(y / side);
         }
-        let noise = self.noise;
+        let (noise, peak) = (self.noise, self.peak);
         for (sx, part) in out.chunks_exact_mut(side).enumerate() {
             let (cx, cy) = self.centres[sx];
             for (i, p) in part.iter_mut().enumerate() {
@@ -180,7 +196,7 @@ impl Generator {
                     Pattern::Spots | Pattern::ClosedLoopSpots => {
                         let (dx, dy) = (i as f32 - cx, j as f32 - cy);
                         background
-                            + PEAK * expf(-(dx * dx + dy * dy) / 4.5)
+                            + peak * expf(-(dx * dx + dy * dy) / 4.5)
                             + (self.rng.next() - 0.5) * noise
                     }
                     Pattern::Ramp => background + (j * side + i) as f32,

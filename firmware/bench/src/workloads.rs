@@ -11,7 +11,7 @@ use brightpix_protocol::{
 };
 
 use crate::floor::{read_every_pixel, Floor, FloorMode};
-use crate::frames::{background_pattern, Generator, Grid, Pattern};
+use crate::frames::{background_pattern, Generator, Grid, Pattern, DEFAULT_FLUX};
 use crate::sort;
 use crate::Counter;
 
@@ -33,6 +33,8 @@ pub struct Workload {
     pub patterned_background: bool,
     /// Peak-to-peak uniform noise, counts (6: +-3).
     pub noise: f32,
+    /// Photons in a spot ([`DEFAULT_FLUX`]: faint).
+    pub flux: f32,
     /// Frames pushed before measuring (the seeds of a running camera).
     pub warmup: usize,
     /// Frames measured.
@@ -60,6 +62,7 @@ pub const CANARY: Workload = Workload {
     background: true,
     patterned_background: false,
     noise: 6.0,
+    flux: DEFAULT_FLUX,
     warmup: 8,
     frames: 8,
     sort: true,
@@ -138,6 +141,15 @@ pub const ALL: &[Workload] = &[
         name: "canary-noise-6-patterned",
         noise: 12.0,
         patterned_background: true,
+        sort: false,
+        ..CANARY
+    },
+    // Spots ten times brighter (peak ~140 counts): a count level of the
+    // window then holds a few pixels, not ~20, which changes what the
+    // seed's margin and the rescans cost.
+    Workload {
+        name: "canary-bright-x10",
+        flux: 10.0 * DEFAULT_FLUX,
         sort: false,
         ..CANARY
     },
@@ -379,6 +391,7 @@ pub fn measure<#[cfg(not(brightpix_qemu_bench))] C: Counter, const A: usize>(
     let frame = &mut b.frame[..pixels];
     let mut generator = Generator::new(0x2545_f491_4f6c_dd1d, grid, w.pattern)
         .with_noise(w.noise)
+        .with_flux(w.flux)
         .with_patterned_background(w.patterned_background);
     for _ in 0..w.warmup {
         generator.frame(frame);
