@@ -60,9 +60,13 @@ fn count_at_hint(entries: &[Entry], hint: i32) -> u16 {
 
 /// Once the front and hint ties prove the cutoff is at or above the hint,
 /// nothing below it can matter, and often no more pixels equal to it: the
-/// rest of the window is filtered harder.
+/// rest of the window is filtered harder. `subtract-next-distinct` first
+/// lowers its hint when that proves it sooner ([`lower_hint_below_front`]).
 #[inline(always)]
 pub(super) fn raise_to_hint(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) {
+    if config.selection.rule == SelectionRule::SubtractNextDistinct {
+        lower_hint_below_front(window);
+    }
     if !window.strict
         && window.front() + window.hint_ties.count as usize >= window.n as usize
         && covers(window, config)
@@ -77,6 +81,53 @@ pub(super) fn raise_to_hint(window: &mut OpenWindow, config: &Config<'_>, max_ra
         );
         update_admission(window, config, max_raw);
     }
+}
+
+/// `subtract-next-distinct` keeps `p >= v(N)` and subtracts the level, the
+/// largest value below `v(N)`. Its windows open with the hint one above
+/// the previous level (`Engine::hint_above`), so that the front holds the
+/// values above that level and not its copies (about 16 in a faint spot's
+/// window), which the row kernel would otherwise count at its stops and
+/// the window's end pass over. Once the front holds N pixels, `v(N)` is at
+/// or above the hint, so the level is at least the largest value held
+/// below the hint, `b`: the hint is lowered to `b`, and the front and
+/// `b`'s copies prove the
+/// cutoff at or above it (`Tiers::covers_hint`: N front values above it,
+/// one copy of it), so [`raise_to_hint`] drops the back tier and admits
+/// `p > b`: the raise the previous level's hint would have made once N
+/// values were above it, without counting its copies.
+///
+/// The back tier goes at once, so `b` need not be its largest, only a value
+/// it holds, and one copy of it will do (later copies of a raised window's
+/// hint are not counted either, `Tiers::hint_ties_settled`): the previous
+/// level, `hint - 1`, found at the first of its copies (a faint spot's
+/// window holds ~16 of them among ~60 back entries), else the back's
+/// largest.
+#[inline(always)]
+fn lower_hint_below_front(window: &mut OpenWindow) {
+    if window.strict || window.hint_ties.count != 0 || window.front() < window.n as usize {
+        return;
+    }
+    let capacity = window.capacity as usize;
+    // SAFETY: the window's live buffer, no other reference to it.
+    let entries = unsafe { window.entries() };
+    let back = &entries[capacity - window.back()..capacity];
+    // `hint - 1` does not overflow: the hint is above the back's values.
+    let level = window.hint.wrapping_sub(1);
+    let Some(copy) = back
+        .iter()
+        .find(|e| e.value == level)
+        .or_else(|| back.iter().max_by_key(|e| e.value))
+    else {
+        return;
+    };
+    let (b, mut ties) = (copy.value, Ties::NONE);
+    ties.add(copy.position as u16);
+    window.hint = b;
+    window.hint_ties = ties;
+    // Every front entry is above `b`.
+    window.at_hint = 0;
+    window.counted = window.front() as u16;
 }
 
 /// Where the row kernel next stops at a window for [`raise_to_hint`]: the
@@ -101,13 +152,20 @@ pub(super) fn attention(window: &OpenWindow, rule: SelectionRule) -> usize {
         // front + ties >= n, then strict at front - at_hint >= n.
         SelectionRule::Threshold if raised => n + window.at_hint as usize,
         SelectionRule::Threshold => n.saturating_sub(ties),
-        // n above the hint besides the front's copies of it counted so far
-        // (`at_hint`, which only grows), and copies of the hint: M for
-        // `subtract-mean`, one for `subtract-next-distinct`. A bound: the
-        // copies that arrived since the last count are counted when it is
-        // reached.
+        // `subtract-next-distinct` without hint ties: N, where its hint is
+        // lowered (`lower_hint_below_front`; with nothing held below the
+        // hint yet, each admission after, until something is).
+        // Else, and for `subtract-mean`: n above the hint besides the
+        // front's copies of it counted so far (`at_hint`, which only
+        // grows), and copies of the hint: M for `subtract-mean`, one for
+        // `subtract-next-distinct`. A bound: the copies that arrived since
+        // the last count are counted when it is reached.
         SelectionRule::SubtractNextDistinct => {
-            n + window.at_hint as usize + 1usize.saturating_sub(ties + window.at_hint as usize)
+            if ties == 0 {
+                n
+            } else {
+                n + window.at_hint as usize + 1usize.saturating_sub(ties + window.at_hint as usize)
+            }
         }
         SelectionRule::SubtractMean { count } => {
             n + window.at_hint as usize
@@ -159,7 +217,10 @@ pub(super) fn admit_at(window: &mut OpenWindow, config: &Config<'_>, max_raw: u1
 ///   kernel counts the front's copies that arrived since the last count
 ///   (`settle_at_hint`'s count) and raises to `p > hint` if they prove
 ///   it, else sets the next attention as [`attention`] would: what
-///   `Engine::attend` did, without leaving the kernel.
+///   `Engine::attend` did, without leaving the kernel. A
+///   `subtract-next-distinct` window without hint ties (its hint one above
+///   the previous level) is raised by `Engine::attend` instead, which
+///   lowers its hint first ([`lower_hint_below_front`]).
 ///
 /// Not for a raised floor of 0 (every pixel passes: the general path's).
 #[inline(always)]
@@ -170,6 +231,7 @@ fn prepare_raise(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) {
             Raise::AT_HINT
         }
         SelectionRule::Threshold => Raise::NONE,
+        SelectionRule::SubtractNextDistinct if window.hint_ties.count == 0 => Raise::NONE,
         SelectionRule::SubtractNextDistinct => Raise::counting(1),
         // M is 1..=16 (`Config::validate`).
         SelectionRule::SubtractMean { count } => Raise::counting(count as u8),

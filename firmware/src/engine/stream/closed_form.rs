@@ -33,7 +33,7 @@
 use super::admission::settle_at_hint;
 use super::{Engine, OutputSink};
 use crate::engine::centroid::{self, Moments, SumsAbove};
-use crate::engine::select::{self, Entry};
+use crate::engine::select::{self, Entry, Ties};
 use crate::engine::window::OpenWindow;
 use brightpix_protocol::SelectionRule;
 
@@ -269,21 +269,26 @@ fn level_rule_end(
     let entries: &[Entry] = unsafe { window.entries() };
     let front = &entries[..f];
     if above < n {
-        // Hint ties come only with `low` raised to the hint (a
-        // compaction's), which leaves no back tier: the level would lie
-        // below every candidate.
-        if above + copies < n || ties.count != 0 {
-            return None;
-        }
         let capacity = window.capacity as usize;
         let back = &entries[capacity - window.back()..capacity];
+        if above + copies < n {
+            return if rule == SelectionRule::SubtractNextDistinct {
+                distinct_cutoff_in_back(window, front, back, above + copies)
+            } else {
+                None
+            };
+        }
+        // `v(N)` is the hint: every front pixel and hint tie is kept, and
+        // the level comes from the back tier and the low ties.
         let below = &mut scratch[..back.len()];
         for (c, e) in below.iter_mut().zip(back) {
             *c = e.value;
         }
         let (cutoff, level) =
             level_from_below(rule, below, window.low, window.low_ties.count as usize)?;
-        let moments = centroid::sums_above(front, hint.checked_sub(1)?).moments(level);
+        let mut moments = centroid::sums_above(front, hint.checked_sub(1)?).moments(level);
+        // `hint > level`: the level is below `v(N)`.
+        moments.add_group(hint - level, ties.count, ties.sum_i, ties.sum_j);
         return Some((cutoff, moments));
     }
     let m = above - n + 1;
@@ -315,6 +320,55 @@ fn level_rule_end(
     let (cutoff, level) = level_from_below(rule, &mut below[..len], hint, copies)?;
     // `v - 1`: `v` is above the hint.
     Some((cutoff, centroid::sums_above(front, v - 1).moments(level)))
+}
+
+/// A `subtract-next-distinct` window whose `held` pixels at or above the
+/// hint fall short of N (its hint one above the previous level,
+/// `Engine::hint_above`, which a window whose cutoff did not fall passes
+/// N times before its end): `v(N)` is the back tier's largest value `b`
+/// if its copies make N, and the level the largest value below `b` (in
+/// the back, or `low` with low ties). One pass over the back finds both
+/// and `b`'s copies, which are kept with every pixel at or above the hint.
+/// `None` (the ordinary end) if `b`'s copies fall short, nothing lies
+/// below `b` in the back, or there are low ties. Out of line: inlined, it
+/// cost `subtract-mean`'s end registers.
+#[inline(never)]
+fn distinct_cutoff_in_back(
+    window: &OpenWindow,
+    front: &[Entry],
+    back: &[Entry],
+    held: usize,
+) -> Option<(i32, Moments)> {
+    // Low ties (after a compaction, rare) are left to the ordinary end.
+    if window.low_ties.count != 0 {
+        return None;
+    }
+    let (mut b, mut below) = (i32::MIN, i32::MIN);
+    let mut copies = Ties::NONE;
+    for e in back {
+        if e.value > b {
+            below = b;
+            b = e.value;
+            copies = Ties::NONE;
+            copies.add(e.position as u16);
+        } else if e.value == b {
+            copies.add(e.position as u16);
+        } else if e.value > below {
+            below = e.value;
+        }
+    }
+    // A value below `b` held: `below`, unless it is still the marker (the
+    // back's values are calibrated values, above `i32::MIN`).
+    if copies.count == 0 || held + (copies.count as usize) < window.n as usize || below == i32::MIN
+    {
+        return None;
+    }
+    let ties = window.hint_ties;
+    // Every front value is at or above the hint, which is above `b`.
+    let mut moments = centroid::sums_above(front, b).moments(below);
+    moments.add_group(window.hint - below, ties.count, ties.sum_i, ties.sum_j);
+    moments.add_group(b - below, copies.count, copies.sum_i, copies.sum_j);
+    Some((below, moments))
 }
 
 /// The seed's cutoff and the level of `subtract-next-distinct` (the largest

@@ -313,7 +313,8 @@ fn prepare_level_rule(
         || window.n >= MOST_N
         || window.rescan
         || window.low_ties.count != 0
-        || window.hint_ties.count != 0
+        || (window.hint_ties.count != 0
+            && config.selection.rule != SelectionRule::SubtractNextDistinct)
         || window.front() >= MOST_N as usize
         || window.room_left() < room
     {
@@ -332,7 +333,14 @@ fn prepare_level_rule(
             level: Some(level),
             cutoff: w,
             ..
-        }) if w >= window.hint => (u, level, w),
+        // `subtract-next-distinct`'s hint ties (the copy of its lowered
+        // hint, `admission::lower_hint_below_front`, or a compaction's cut
+        // at the level) lie below `u`, its `v(N)`, which is above the
+        // hint then; checked, since the block sums front pixels only and
+        // ties at `u` would weigh.
+        }) if w >= window.hint && (window.hint_ties.count == 0 || u > window.hint) => {
+            (u, level, w)
+        }
         _ => return,
     };
     // `u > w`, so `u - 1` does not overflow, nor `w + 1`.

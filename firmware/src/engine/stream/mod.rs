@@ -162,6 +162,11 @@ pub struct Engine<'c, 'm> {
     closed_form: bool,
     /// Likewise, for `subtract-next-distinct` or `subtract-mean`.
     level_closed_form: bool,
+    /// A window's hint is one above its seed's as it opens: for
+    /// `subtract-next-distinct`, whose front then holds the values above
+    /// the previous level, not its copies
+    /// (`admission::lower_hint_below_front`).
+    hint_above: bool,
     /// Some window selects the complement (`complement`).
     complement: bool,
     /// Every open window selects the complement, with whole words for
@@ -263,6 +268,8 @@ impl<'c, 'm> Engine<'c, 'm> {
                 brightpix_protocol::SelectionRule::SubtractNextDistinct
                     | brightpix_protocol::SelectionRule::SubtractMean { .. }
             ) && config.selection.level_filter.is_none(),
+            hint_above: config.selection.rule
+                == brightpix_protocol::SelectionRule::SubtractNextDistinct,
             complement: complement::applies(&config),
             all_complement: false,
             push_len: 0,
