@@ -61,26 +61,36 @@ fn count_at_hint(entries: &[Entry], hint: i32) -> u16 {
 /// Once the front and hint ties prove the cutoff is at or above the hint,
 /// nothing below it can matter, and often no more pixels equal to it: the
 /// rest of the window is filtered harder. `subtract-next-distinct` first
-/// lowers its hint when that proves it sooner ([`lower_hint_below_front`]).
+/// lowers its hint when that proves it sooner ([`raise_below_front`]).
 #[inline(always)]
 pub(super) fn raise_to_hint(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) {
-    if config.selection.rule == SelectionRule::SubtractNextDistinct {
-        lower_hint_below_front(window);
+    if config.selection.rule == SelectionRule::SubtractNextDistinct
+        && raise_below_front(window, config, max_raw)
+    {
+        return;
     }
     if !window.strict
         && window.front() + window.hint_ties.count as usize >= window.n as usize
         && covers(window, config)
     {
-        window.set_back(0);
-        window.low = window.hint;
-        window.low_ties = Ties::NONE;
-        window.strict = Tiers::hint_ties_settled(
+        let strict = Tiers::hint_ties_settled(
             config.selection.rule,
             window.n,
             window.front() as u16 - window.at_hint,
         );
-        update_admission(window, config, max_raw);
+        raise(window, config, max_raw, strict);
     }
+}
+
+/// The back tier dropped, `low` raised to the hint, and admission
+/// `p > hint` if `strict`, else `p >= hint`.
+#[inline(always)]
+fn raise(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16, strict: bool) {
+    window.set_back(0);
+    window.low = window.hint;
+    window.low_ties = Ties::NONE;
+    window.strict = strict;
+    update_admission(window, config, max_raw);
 }
 
 /// `subtract-next-distinct` keeps `p >= v(N)` and subtracts the level, the
@@ -90,12 +100,13 @@ pub(super) fn raise_to_hint(window: &mut OpenWindow, config: &Config<'_>, max_ra
 /// window), which the row kernel would otherwise count at its stops and
 /// the window's end pass over. Once the front holds N pixels, `v(N)` is at
 /// or above the hint, so the level is at least the largest value held
-/// below the hint, `b`: the hint is lowered to `b`, and the front and
-/// `b`'s copies prove the
-/// cutoff at or above it (`Tiers::covers_hint`: N front values above it,
-/// one copy of it), so [`raise_to_hint`] drops the back tier and admits
-/// `p > b`: the raise the previous level's hint would have made once N
-/// values were above it, without counting its copies.
+/// below the hint, `b`: the hint is lowered to `b`, where the front and a
+/// copy of `b` prove the cutoff at or above it (`Tiers::covers_hint`: N
+/// front values above it, one copy of it), so the back tier goes and
+/// admission becomes `p > b` at once: the raise the previous level's hint
+/// would have made once N values were above it, without counting its
+/// copies. `false` (nothing changed) if the window is raised already, has
+/// hint ties, a front short of N or an empty back tier.
 ///
 /// The back tier goes at once, so `b` need not be its largest, only a value
 /// it holds, and one copy of it will do (later copies of a raised window's
@@ -104,9 +115,9 @@ pub(super) fn raise_to_hint(window: &mut OpenWindow, config: &Config<'_>, max_ra
 /// window holds ~16 of them among ~60 back entries), else the back's
 /// largest.
 #[inline(always)]
-fn lower_hint_below_front(window: &mut OpenWindow) {
+fn raise_below_front(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) -> bool {
     if window.strict || window.hint_ties.count != 0 || window.front() < window.n as usize {
-        return;
+        return false;
     }
     let capacity = window.capacity as usize;
     // SAFETY: the window's live buffer, no other reference to it.
@@ -119,7 +130,7 @@ fn lower_hint_below_front(window: &mut OpenWindow) {
         .find(|e| e.value == level)
         .or_else(|| back.iter().max_by_key(|e| e.value))
     else {
-        return;
+        return false;
     };
     let (b, mut ties) = (copy.value, Ties::NONE);
     ties.add(copy.position as u16);
@@ -128,6 +139,8 @@ fn lower_hint_below_front(window: &mut OpenWindow) {
     // Every front entry is above `b`.
     window.at_hint = 0;
     window.counted = window.front() as u16;
+    raise(window, config, max_raw, true);
+    true
 }
 
 /// Where the row kernel next stops at a window for [`raise_to_hint`]: the
@@ -153,7 +166,7 @@ pub(super) fn attention(window: &OpenWindow, rule: SelectionRule) -> usize {
         SelectionRule::Threshold if raised => n + window.at_hint as usize,
         SelectionRule::Threshold => n.saturating_sub(ties),
         // `subtract-next-distinct` without hint ties: N, where its hint is
-        // lowered (`lower_hint_below_front`; with nothing held below the
+        // lowered (`raise_below_front`; with nothing held below the
         // hint yet, each admission after, until something is).
         // Else, and for `subtract-mean`: n above the hint besides the
         // front's copies of it counted so far (`at_hint`, which only
@@ -220,7 +233,7 @@ pub(super) fn admit_at(window: &mut OpenWindow, config: &Config<'_>, max_raw: u1
 ///   `Engine::attend` did, without leaving the kernel. A
 ///   `subtract-next-distinct` window without hint ties (its hint one above
 ///   the previous level) is raised by `Engine::attend` instead, which
-///   lowers its hint first ([`lower_hint_below_front`]).
+///   lowers its hint first ([`raise_below_front`]).
 ///
 /// Not for a raised floor of 0 (every pixel passes: the general path's).
 #[inline(always)]

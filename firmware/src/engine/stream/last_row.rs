@@ -334,7 +334,7 @@ fn prepare_level_rule(
             cutoff: w,
             ..
         // `subtract-next-distinct`'s hint ties (the copy of its lowered
-        // hint, `admission::lower_hint_below_front`, or a compaction's cut
+        // hint, `admission::raise_below_front`, or a compaction's cut
         // at the level) lie below `u`, its `v(N)`, which is above the
         // hint then; checked, since the block sums front pixels only and
         // ties at `u` would weigh.

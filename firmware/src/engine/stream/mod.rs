@@ -165,7 +165,7 @@ pub struct Engine<'c, 'm> {
     /// A window's hint is one above its seed's as it opens: for
     /// `subtract-next-distinct`, whose front then holds the values above
     /// the previous level, not its copies
-    /// (`admission::lower_hint_below_front`).
+    /// (`admission::raise_below_front`).
     hint_above: bool,
     /// Some window selects the complement (`complement`).
     complement: bool,
