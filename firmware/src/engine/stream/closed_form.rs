@@ -246,9 +246,12 @@ fn threshold_end(window: &mut OpenWindow, scratch: &mut [i32]) -> Option<(i32, M
 /// - With fewer, but `N` or more with the hint's copies in the front,
 ///   `v(N)` is the hint: every front pixel is kept, and the level comes
 ///   from the back tier and, below it, the low ties.
+/// - With fewer still, for `subtract-next-distinct` (whose hint is one
+///   above the previous level, so that its copies are in the back),
+///   `v(N)` may be the back's largest value ([`distinct_cutoff_in_back`]).
 ///
-/// Anything else (`v(N)` in the back tier, candidates that do not reach
-/// the level) ends the ordinary way, which also rescans.
+/// Anything else (`v(N)` deeper in the back tier, candidates that do not
+/// reach the level) ends the ordinary way, which also rescans.
 #[inline(always)]
 fn level_rule_end(
     window: &mut OpenWindow,
@@ -278,17 +281,21 @@ fn level_rule_end(
                 None
             };
         }
-        // `v(N)` is the hint: every front pixel and hint tie is kept, and
-        // the level comes from the back tier and the low ties.
+        // Hint ties come only with `low` raised to the hint (a
+        // compaction's), which leaves no back tier: the level would lie
+        // below every candidate.
+        if ties.count != 0 {
+            return None;
+        }
+        // `v(N)` is the hint: every front pixel is kept, and the level
+        // comes from the back tier and the low ties.
         let below = &mut scratch[..back.len()];
         for (c, e) in below.iter_mut().zip(back) {
             *c = e.value;
         }
         let (cutoff, level) =
             level_from_below(rule, below, window.low, window.low_ties.count as usize)?;
-        let mut moments = centroid::sums_above(front, hint.checked_sub(1)?).moments(level);
-        // `hint > level`: the level is below `v(N)`.
-        moments.add_group(hint - level, ties.count, ties.sum_i, ties.sum_j);
+        let moments = centroid::sums_above(front, hint.checked_sub(1)?).moments(level);
         return Some((cutoff, moments));
     }
     let m = above - n + 1;
@@ -326,9 +333,9 @@ fn level_rule_end(
 /// hint fall short of N (its hint one above the previous level,
 /// `Engine::hint_above`, which a window whose cutoff did not fall passes
 /// N times before its end): `v(N)` is the back tier's largest value `b`
-/// if its copies make N, and the level the largest value below `b` (in
-/// the back, or `low` with low ties). One pass over the back finds both
-/// and `b`'s copies, which are kept with every pixel at or above the hint.
+/// if its copies make N, and the level the largest value below `b` in the
+/// back. One pass over the back finds both and `b`'s copies, which are
+/// kept with every pixel at or above the hint.
 /// `None` (the ordinary end) if `b`'s copies fall short, nothing lies
 /// below `b` in the back, or there are low ties. Out of line: inlined, it
 /// cost `subtract-mean`'s end registers.
