@@ -37,7 +37,7 @@ impl Engine<'_, '_> {
     pub(super) fn open_windows_of_row(&mut self) {
         // An instance each: `subtract-next-distinct`'s raised hints in the
         // other rules' loop cost them register room (Cortex-M7 CANARY
-        // +0.03 instructions a pixel, 8x8 windows +0.16).
+        // +0.03 instructions a pixel, 8x8 windows +0.11).
         if self.hint_above {
             self.open_windows::<true>();
         } else {
