@@ -188,6 +188,77 @@ pub(super) fn attention(window: &OpenWindow, rule: SelectionRule) -> usize {
     window.buffer + fewest.max(front + 1) * core::mem::size_of::<Entry>()
 }
 
+/// [`update_admission`] and [`attention`] for a window just opened (not
+/// strict, no ties, no back tier), with what depends on the rule alone
+/// worked out once for all the windows one row opens: each opening costs
+/// the two raw floors and a few stores, not the rules' matches.
+#[derive(Clone, Copy)]
+pub(super) struct FreshWindow {
+    /// [`attention`] at `N` plus this many entries.
+    beyond_n: usize,
+    /// [`prepare_raise`]'s raise (`threshold`'s: when `low` is below the
+    /// hint).
+    raise: Raise,
+}
+
+impl FreshWindow {
+    #[inline(always)]
+    pub(super) fn of(rule: SelectionRule) -> FreshWindow {
+        let (beyond_n, raise) = match rule {
+            SelectionRule::SubtractNext => (1, Raise::ABOVE_HINT),
+            SelectionRule::Threshold => (0, Raise::AT_HINT),
+            // No hint ties yet: `Engine::attend` raises it.
+            SelectionRule::SubtractNextDistinct => (0, Raise::NONE),
+            SelectionRule::SubtractMean { count } => {
+                // M is 1..=16 (`Config::validate`).
+                (count as usize, Raise::counting(count as u8))
+            }
+        };
+        FreshWindow { beyond_n, raise }
+    }
+
+    /// Admission, the kernel's raise and attention for `window`, opened
+    /// with a candidate buffer and its thresholds.
+    #[inline(always)]
+    pub(super) fn admit(self, window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) {
+        let ceiling = max_raw as u32 + 1;
+        admit_at(window, config, max_raw, window.low);
+        let raise = if self.raise == Raise::AT_HINT && window.low == window.hint {
+            Raise::NONE
+        } else {
+            self.raise
+        };
+        let strict = raise != Raise::AT_HINT;
+        let floor = if raise != Raise::NONE && (!strict || window.hint < i32::MAX) {
+            raw_floor(
+                &config.calibration,
+                window.bounds,
+                window.hint + strict as i32,
+            )
+            .min(ceiling)
+        } else {
+            0
+        };
+        window.raise = if floor != 0 { raise } else { Raise::NONE };
+        window.raise_lane = floor.wrapping_sub(1) as u16;
+        window.attention =
+            window.buffer + (window.n as usize + self.beyond_n).max(1) * size_of::<Entry>();
+        #[cfg(debug_assertions)]
+        {
+            // The general functions, on a copy, agree.
+            let mut general = *window;
+            update_admission(&mut general, config, max_raw);
+            general.attention = attention(&general, config.selection.rule);
+            debug_assert!(
+                (general.admit, general.floor, general.lanes, general.raise)
+                    == (window.admit, window.floor, window.lanes, window.raise)
+                    && (general.raise_lane, general.attention)
+                        == (window.raise_lane, window.attention)
+            );
+        }
+    }
+}
+
 /// After `low`, `hint` or `strict` changed: the window's admission
 /// threshold, and the pre-filter's raw floor for it, lowered so that a pixel
 /// above `max_raw` always passes (see `OpenWindow::floor`), in both forms;

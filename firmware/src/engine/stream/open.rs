@@ -2,7 +2,7 @@
 //! buffer from the pool, the seed's thresholds, a place in column order;
 //! and the open windows' layout flags.
 
-use super::admission::{attention, update_admission};
+use super::admission::FreshWindow;
 use super::Engine;
 use crate::engine::centroid::Moments;
 use crate::engine::select::{preferred_capacity, Entry, Ties};
@@ -53,6 +53,10 @@ impl Engine<'_, '_> {
     #[inline(never)]
     fn open_windows<const HINT_ABOVE: bool>(&mut self) {
         let windows = self.config.windows;
+        let fresh = FreshWindow::of(self.config.selection.rule);
+        // Windows of one row mostly share N and size: the capacity of the
+        // last one, for the next if they match.
+        let (mut last_n, mut last_pixels, mut last_capacity) = (u16::MAX, 0u16, 0u16);
         while self.next_to_open < windows.len() {
             let index = self.memory.order[self.next_to_open] as usize;
             let w = windows[index];
@@ -64,9 +68,14 @@ impl Engine<'_, '_> {
             self.free_len -= 1;
             let number = self.memory.free[self.free_len];
             let n = self.config.pixel_count(index);
-            // The stride is at least every window's least capacity (plan).
-            let capacity = preferred_capacity(self.config.selection.rule, n, w.pixel_count())
-                .min(self.stride as u16);
+            let pixels = w.width * w.height;
+            if n != last_n || pixels != last_pixels {
+                // The stride is at least every window's least capacity (plan).
+                last_capacity = preferred_capacity(self.config.selection.rule, n, pixels as usize)
+                    .min(self.stride as u16);
+                (last_n, last_pixels) = (n, pixels);
+            }
+            let capacity = last_capacity;
             let state = &self.memory.subapertures[index];
             let (hint, low) = if capacity > 0 {
                 let (hint, low) = state.seed.thresholds();
@@ -166,8 +175,7 @@ impl Engine<'_, '_> {
             // `segment_rest`).
             let window = &mut open[k];
             if capacity > 0 {
-                update_admission(window, &self.config, self.max_raw);
-                window.attention = attention(window, self.config.selection.rule);
+                fresh.admit(window, &self.config, self.max_raw);
             }
             if !window.update_kernel_segment() {
                 self.not_ready += 1;
