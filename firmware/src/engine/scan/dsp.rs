@@ -4,8 +4,8 @@
 //! segment's end, r7 the lanes, r8 `admit`, r9 the window's position
 //! constant, r10 `front_end`, r11 `back_start`, r12 `bg_delta` (without
 //! a background map, the window's hint in the hot loop), lr the window. On
-//! the stack: the row, the windows' end, `position_delta`,
-//! `max_raw`, the arguments.
+//! the stack: the row and `position_delta` (one `LDRD` a window), the
+//! windows' end, `max_raw`, the arguments.
 //!
 //! A segment is scanned by the *cold* loop until some pixel passes the
 //! lanes; the pixel handlers return into the *hot* copy of the loop,
@@ -113,30 +113,29 @@ macro_rules! kernel {
                 "sub sp, #20",
                 "ldr r1, [r0, #{a_row}]",
                 "str r1, [sp, #0]",
-                "ldr r1, [r0, #{a_end}]",
-                "str r1, [sp, #4]",
                 "ldr r1, [r0, #{a_position}]",
+                "str r1, [sp, #4]",
+                "ldr r1, [r0, #{a_end}]",
                 "str r1, [sp, #8]",
                 "ldr r1, [r0, #{a_max_raw}]",
                 "str r1, [sp, #12]",
                 "str r0, [sp, #16]",
                 "ldr lr, [r0, #{a_first}]",
                 "ldr r12, [r0, #{a_bg}]",
-                "ldr r0, [sp, #4]",
+                "ldr r0, [sp, #8]",
                 "cmp lr, r0",
                 "beq 80f",
                 // A window: its segment (empty: the next window), lanes,
-                // admission, position constant and tiers.
+                // admission and position constant (its tiers when a pixel
+                // first passes the lanes).
                 "2:",
                 "ldm lr, {{r5, r6, r7, r8, r9}}",
                 "subs r0, r6, r5",
                 "beq 1f",
-                "ldrd r10, r11, [lr, #{front_end}]",
-                "ldr r3, [sp, #0]",
+                "ldrd r3, r4, [sp, #0]",
                 "add r5, r5, r3",
                 "add r6, r6, r3",
-                "ldr r3, [sp, #8]",
-                "add r9, r9, r3",
+                "add r9, r9, r4",
                 "tst r0, #4",
                 "bne 9f",
                 // The cold loop.
@@ -152,7 +151,7 @@ macro_rules! kernel {
                 // The next window.
                 "1:",
                 "add lr, lr, #{size}",
-                "ldr r0, [sp, #4]",
+                "ldr r0, [sp, #8]",
                 "cmp lr, r0",
                 "bne 2b",
                 "80:",
@@ -166,9 +165,11 @@ macro_rules! kernel {
                 "ldr r2, [r5], #4",
                 "b 4b",
                 "31:",
+                "ldrd r10, r11, [lr, #{front_end}]",
                 hint_to_r12!($bg),
                 "b 6f",
                 "32:",
+                "ldrd r10, r11, [lr, #{front_end}]",
                 hint_to_r12!($bg),
                 "b 5f",
                 // The hot loop (its exit after the handlers): the

@@ -188,13 +188,19 @@ impl Engine<'_, '_> {
     /// The open windows' layout flags: `disjoint`, `gapless` and
     /// `next_last_row`.
     pub(super) fn update_layout(&mut self) {
-        let open = &self.memory.open[..self.open_len];
-        self.disjoint = open.windows(2).all(|pair| pair[0].end_column <= pair[1].x);
-        self.gapless = !open.is_empty()
-            && open[0].x == 0
-            && open[open.len() - 1].end_column == self.config.camera.width
-            && open.windows(2).all(|pair| pair[0].end_column == pair[1].x);
-        self.next_last_row = open.iter().map(|w| w.last_row).min().unwrap_or(u16::MAX);
+        // One pass: `end` is where the previous window ends (0 before the
+        // first), so the first window's start and the gaps read alike.
+        let (mut disjoint, mut gapless) = (true, true);
+        let (mut end, mut next_last_row) = (0, u16::MAX);
+        for w in &self.memory.open[..self.open_len] {
+            disjoint &= end <= w.x;
+            gapless &= end == w.x;
+            end = w.end_column;
+            next_last_row = next_last_row.min(w.last_row);
+        }
+        self.disjoint = disjoint;
+        self.gapless = self.open_len > 0 && gapless && end == self.config.camera.width;
+        self.next_last_row = next_last_row;
         if self.complement {
             self.update_complement();
         }
