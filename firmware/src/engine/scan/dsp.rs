@@ -195,8 +195,9 @@ macro_rules! kernel {
                 check!($check, "92f"),
                 calibrate!($bg, 8),
                 admit!($bg, 2, "51f"),
+                // r0 still holds the word's test: a pixel's handler
+                // leaves it alone.
                 "51:",
-                "uqsub16 r0, r2, r7",
                 "cmp r0, #0x10000",
                 "blo 17b",
                 "b 52f",
@@ -209,7 +210,6 @@ macro_rules! kernel {
                 calibrate!($bg, 0),
                 admit!($bg, 0, "61f"),
                 "61:",
-                "uqsub16 r0, r1, r7",
                 "cmp r0, #0x10000",
                 "blo 14b",
                 "lsrs r3, r1, #16",
