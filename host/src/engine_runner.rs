@@ -51,7 +51,8 @@ impl EngineBuffers {
         EngineBuffers {
             order: vec![0; size.subapertures],
             subapertures: vec![SubapertureState::RESET; size.subapertures],
-            open: vec![OpenWindow::CLOSED; size.open_windows],
+            // One more: the row kernel's end mark.
+            open: vec![OpenWindow::CLOSED; size.open_windows + 1],
             free: vec![0; size.open_windows],
             entries: vec![Entry::ZERO; size.pool_entries],
             history: vec![0; size.history_pixels],

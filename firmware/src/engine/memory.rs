@@ -5,7 +5,8 @@
 //!   `size_of::<SubapertureState>()` (level filter, seed, map bounds);
 //! - per simultaneously open window (a window is open from its first row to
 //!   its last, so a regular grid has one grid row of windows open):
-//!   `size_of::<OpenWindow>()` + 2 bytes (free list);
+//!   `size_of::<OpenWindow>()` + 2 bytes (free list); and one
+//!   `OpenWindow` more, the row kernel's end mark after the last open one;
 //! - per open window, a candidate buffer of `stride` entries of 8 bytes
 //!   (value + position): the largest `select::preferred_capacity` over the
 //!   windows (about `4 (N + 1) + 64`, at most the window's pixels; 0
@@ -34,10 +35,12 @@ pub struct EngineMemory<'m> {
     pub order: &'m mut [u16],
     /// One per sub-aperture.
     pub subapertures: &'m mut [SubapertureState],
-    /// One per simultaneously open window: the open windows, by first
-    /// column.
+    /// One per simultaneously open window, and one more: the open windows,
+    /// by first column, and after the last of them the row kernel's end
+    /// mark (`OpenWindow::mark_end`).
     pub open: &'m mut [OpenWindow],
-    /// Same length as `open`: the free candidate buffers.
+    /// One per simultaneously open window (one less than `open`): the free
+    /// candidate buffers.
     pub free: &'m mut [u16],
     /// Candidate buffers.
     pub entries: &'m mut [Entry],
@@ -54,7 +57,7 @@ impl EngineMemory<'_> {
     pub fn capacity(&self) -> MemorySize {
         MemorySize {
             subapertures: self.order.len().min(self.subapertures.len()),
-            open_windows: self.open.len().min(self.free.len()),
+            open_windows: self.open.len().saturating_sub(1).min(self.free.len()),
             pool_entries: self.entries.len(),
             history_pixels: self.history.len(),
             scratch_entries: self.scratch.len().min(self.rescan.len()),
@@ -76,7 +79,8 @@ impl MemorySize {
     /// Bytes these sizes take.
     pub const fn bytes(&self) -> usize {
         self.subapertures * (2 + core::mem::size_of::<SubapertureState>())
-            + self.open_windows * (core::mem::size_of::<OpenWindow>() + 2)
+            + (self.open_windows + 1) * core::mem::size_of::<OpenWindow>()
+            + self.open_windows * 2
             + self.pool_entries * 8
             + self.history_pixels * 2
             + self.scratch_entries * 12
@@ -84,8 +88,9 @@ impl MemorySize {
 }
 
 /// Memory for a board, sized at compile time, placeable in a `static`:
-/// `SUBAPERTURES`, `OPEN` windows, `ENTRIES` candidate entries, `HISTORY`
-/// row-history pixels and `SCRATCH` scratch entries.
+/// `SUBAPERTURES`, `OPEN` windows (and the end mark's slot), `ENTRIES`
+/// candidate entries, `HISTORY` row-history pixels and `SCRATCH` scratch
+/// entries.
 pub struct StaticEngineMemory<
     const SUBAPERTURES: usize,
     const OPEN: usize,
@@ -95,7 +100,7 @@ pub struct StaticEngineMemory<
 > {
     order: [u16; SUBAPERTURES],
     subapertures: [SubapertureState; SUBAPERTURES],
-    open: [OpenWindow; OPEN],
+    open: OpenSlots<OPEN>,
     free: [u16; OPEN],
     entries: [Entry; ENTRIES],
     history: [u16; HISTORY],
@@ -128,7 +133,10 @@ impl<
         StaticEngineMemory {
             order: [0; SUBAPERTURES],
             subapertures: [SubapertureState::RESET; SUBAPERTURES],
-            open: [OpenWindow::CLOSED; OPEN],
+            open: OpenSlots {
+                windows: [OpenWindow::CLOSED; OPEN],
+                end: OpenWindow::CLOSED,
+            },
             free: [0; OPEN],
             entries: [Entry::ZERO; ENTRIES],
             history: [0; HISTORY],
@@ -141,12 +149,31 @@ impl<
         EngineMemory {
             order: &mut self.order,
             subapertures: &mut self.subapertures,
-            open: &mut self.open,
+            open: self.open.as_slice(),
             free: &mut self.free,
             entries: &mut self.entries,
             history: &mut self.history,
             scratch: &mut self.scratch,
             rescan: &mut self.rescan,
         }
+    }
+}
+
+/// `OPEN` open windows' slots and the end mark's after them, in one
+/// slice (the const generics of stable Rust cannot size an array
+/// `OPEN + 1`).
+#[repr(C)]
+struct OpenSlots<const OPEN: usize> {
+    windows: [OpenWindow; OPEN],
+    end: OpenWindow,
+}
+
+impl<const OPEN: usize> OpenSlots<OPEN> {
+    fn as_slice(&mut self) -> &mut [OpenWindow] {
+        // SAFETY: `repr(C)` puts `end` right after the array, with no
+        // padding (an `OpenWindow`'s size is a multiple of its alignment),
+        // so the struct is `OPEN + 1` consecutive `OpenWindow`s, borrowed
+        // mutably as a whole.
+        unsafe { core::slice::from_raw_parts_mut(self as *mut Self as *mut OpenWindow, OPEN + 1) }
     }
 }

@@ -216,6 +216,29 @@ impl OpenWindow {
         moments: Moments::ZERO,
     };
 
+    /// Makes this slot the end of the row kernel's window range (see
+    /// `scan::row`): a segment that ends before it starts, which no window
+    /// has (an empty one starts where it ends). Only the segment is
+    /// touched: [`OpenWindow::unmark_end`] puts back what it was.
+    #[inline(always)]
+    pub(crate) fn mark_end(&mut self) -> (u32, u32) {
+        let was = (self.segment_start, self.segment_end);
+        (self.segment_start, self.segment_end) = (1, 0);
+        was
+    }
+
+    /// Whether this slot is an end mark ([`OpenWindow::mark_end`]).
+    #[inline(always)]
+    pub(crate) fn is_end_mark(&self) -> bool {
+        self.segment_end < self.segment_start
+    }
+
+    /// Undoes [`OpenWindow::mark_end`], given what it returned.
+    #[inline(always)]
+    pub(crate) fn unmark_end(&mut self, was: (u32, u32)) {
+        (self.segment_start, self.segment_end) = was;
+    }
+
     /// Pixels in the window.
     pub(crate) fn pixels(&self) -> u16 {
         self.width * self.height

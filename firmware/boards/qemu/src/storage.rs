@@ -64,8 +64,9 @@ static SLOT_B: ConstStaticCell<SlotStorage<S, P>> = ConstStaticCell::new(SlotSto
 static ENGINE_ORDER: ConstStaticCell<[u16; S]> = ConstStaticCell::new([0; S]);
 static SUBAPERTURE_STATES: ConstStaticCell<[SubapertureState; S]> =
     ConstStaticCell::new([SubapertureState::RESET; S]);
-static OPEN_WINDOWS: ConstStaticCell<[OpenWindow; OPEN]> =
-    ConstStaticCell::new([OpenWindow::CLOSED; OPEN]);
+/// One more than the open windows: the row kernel's end mark.
+static OPEN_WINDOWS: ConstStaticCell<[OpenWindow; OPEN + 1]> =
+    ConstStaticCell::new([OpenWindow::CLOSED; OPEN + 1]);
 static FREE: ConstStaticCell<[u16; OPEN]> = ConstStaticCell::new([0; OPEN]);
 static POOL: ConstStaticCell<[Entry; ENTRIES]> = ConstStaticCell::new([Entry::ZERO; ENTRIES]);
 static HISTORY: ConstStaticCell<WordAligned<[u16; HISTORY_PIXELS]>> =
@@ -97,7 +98,8 @@ static STREAM_PIXELS: ConstStaticCell<WordAligned<[u16; PIXEL_BATCH]>> =
 /// Bytes of all the buffers above.
 pub const TOTAL_BYTES: usize = 2 * core::mem::size_of::<SlotStorage<S, P>>()
     + S * (2 + core::mem::size_of::<SubapertureState>())
-    + OPEN * (core::mem::size_of::<OpenWindow>() + 2)
+    + (OPEN + 1) * core::mem::size_of::<OpenWindow>()
+    + OPEN * 2
     + ENTRIES * 8
     + HISTORY_PIXELS * 2
     + SCRATCH_ENTRIES * 12

@@ -67,7 +67,7 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
         let with_background = round % 4 != 3;
         // Up to seven windows from the row's start, even columns and widths,
         // with gaps; both copies share the layout, each its own buffers.
-        let mut windows = [[OpenWindow::CLOSED; 7]; 2];
+        let mut windows = [[OpenWindow::CLOSED; 8]; 2];
         let count = 1 + next(7) as usize;
         let mut x = 2 * next(3) as u16;
         let mut made = 0;
@@ -226,7 +226,8 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
             }
         };
         let (a, b) = windows.split_at_mut(1);
-        let (kernel, twin) = (&mut a[0][..made], &mut b[0][..made]);
+        // With the end mark's slot.
+        let (kernel, twin) = (&mut a[0][..=made], &mut b[0][..=made]);
         let (stops_kernel, n_kernel) = run(kernel, false);
         let (stops_twin, n_twin) = run(twin, true);
         if stops_kernel[..n_kernel] != stops_twin[..n_twin] {
@@ -240,7 +241,7 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
         if matches!(stops_kernel[n_kernel - 1], RowStop::OutOfRange { .. }) {
             continue;
         }
-        for (k, t) in kernel.iter().zip(twin.iter()) {
+        for (k, t) in kernel[..made].iter().zip(&twin[..made]) {
             let (kb, tb) = (
                 k.buffer - buffers[0].as_ptr() as usize,
                 t.buffer - buffers[1].as_ptr() as usize,
@@ -342,7 +343,7 @@ pub fn check_complement_row(seed: u64, rounds: usize) -> Result<(), KernelMismat
         }
         let with_background = round % 4 != 3;
         let row_index = next(200) as u16 + 64;
-        let mut windows = [[OpenWindow::CLOSED; 7]; 2];
+        let mut windows = [[OpenWindow::CLOSED; 8]; 2];
         let (mut x, mut made) = (2 * next(3) as u16, 0);
         for k in 0..1 + next(7) as usize {
             let width = 2 + 2 * next(32) as u16;
@@ -413,7 +414,8 @@ pub fn check_complement_row(seed: u64, rounds: usize) -> Result<(), KernelMismat
             }
         };
         let (a, b) = windows.split_at_mut(1);
-        let (kernel, twin) = (&mut a[0][..made], &mut b[0][..made]);
+        // With the end mark's slot.
+        let (kernel, twin) = (&mut a[0][..=made], &mut b[0][..=made]);
         let stop_kernel = run(kernel, false);
         if stop_kernel != run(twin, true) {
             return Err(mismatch(
@@ -422,7 +424,7 @@ pub fn check_complement_row(seed: u64, rounds: usize) -> Result<(), KernelMismat
                 stop_kernel.0,
             ));
         }
-        for (k, (w, t)) in kernel.iter().zip(twin.iter()).enumerate() {
+        for (k, (w, t)) in kernel[..made].iter().zip(&twin[..made]).enumerate() {
             if w.moments != t.moments || w.front() != t.front() {
                 return Err(mismatch(
                     "the complement kernel's sums or candidate count differ from its twin's",

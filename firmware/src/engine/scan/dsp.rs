@@ -4,8 +4,10 @@
 //! segment's end, r7 the lanes, r8 `admit`, r9 the window's position
 //! constant, r10 `front_end`, r11 `back_start`, r12 `bg_delta` (without
 //! a background map, the window's hint in the hot loop), lr the window. On
-//! the stack: the row and `position_delta` (one `LDRD` a window), the
-//! windows' end, `max_raw`, the arguments.
+//! the stack: the row and `position_delta` (one `LDRD` a window),
+//! `max_raw`, the arguments (and a word for the stack's 8-byte
+//! alignment). The windows are walked to the end mark
+//! after the last (see `scan::row`).
 //!
 //! A segment is scanned by the *cold* loop until some pixel passes the
 //! lanes; the pixel handlers return into the *hot* copy of the loop,
@@ -19,7 +21,7 @@ use core::mem::offset_of;
 /// The range check of the pixel in r3 when `$check`: out to `$out`.
 macro_rules! check {
     (true, $out:literal) => {
-        concat!("ldr r4, [sp, #12]\n", "cmp r3, r4\n", "bhi ", $out, "\n")
+        concat!("ldr r4, [sp, #8]\n", "cmp r3, r4\n", "bhi ", $out, "\n")
     };
     (false, $out:literal) => {
         ""
@@ -115,23 +117,19 @@ macro_rules! kernel {
                 "str r1, [sp, #0]",
                 "ldr r1, [r0, #{a_position}]",
                 "str r1, [sp, #4]",
-                "ldr r1, [r0, #{a_end}]",
-                "str r1, [sp, #8]",
                 "ldr r1, [r0, #{a_max_raw}]",
-                "str r1, [sp, #12]",
-                "str r0, [sp, #16]",
+                "str r1, [sp, #8]",
+                "str r0, [sp, #12]",
                 "ldr lr, [r0, #{a_first}]",
                 "ldr r12, [r0, #{a_bg}]",
-                "ldr r0, [sp, #8]",
-                "cmp lr, r0",
-                "beq 80f",
-                // A window: its segment (empty: the next window), lanes,
-                // admission and position constant (its tiers when a pixel
-                // first passes the lanes).
+                // A window: its segment (empty: the next window; ending
+                // before it starts: the end mark), lanes, admission and
+                // position constant (its tiers when a pixel first passes
+                // the lanes).
                 "2:",
                 "ldm lr, {{r5, r6, r7, r8, r9}}",
                 "subs r0, r6, r5",
-                "beq 1f",
+                "bls 8f",
                 "ldrd r3, r4, [sp, #0]",
                 "add r5, r5, r3",
                 "add r6, r6, r3",
@@ -151,10 +149,10 @@ macro_rules! kernel {
                 // The next window.
                 "1:",
                 "add lr, lr, #{size}",
-                "ldr r0, [sp, #8]",
-                "cmp lr, r0",
-                "bne 2b",
-                "80:",
+                "b 2b",
+                // An empty segment, or the end mark: done.
+                "8:",
+                "beq 1b",
                 "movs r0, #0",
                 "81:",
                 "add sp, #20",
@@ -331,13 +329,12 @@ macro_rules! kernel {
                 "93:",
                 "sub r3, r5, #2",
                 "95:",
-                "ldr r0, [sp, #16]",
+                "ldr r0, [sp, #12]",
                 "str r3, [r0, #{a_bad}]",
                 "orr r0, lr, #1",
                 "b 81b",
                 a_row = const offset_of!(RowScan, row),
                 a_first = const offset_of!(RowScan, first),
-                a_end = const offset_of!(RowScan, end),
                 a_bg = const offset_of!(RowScan, bg_delta),
                 a_position = const offset_of!(RowScan, position_delta),
                 a_max_raw = const offset_of!(RowScan, max_raw),

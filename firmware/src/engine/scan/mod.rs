@@ -39,7 +39,8 @@ pub struct RowScan {
     /// Address of the row's first pixel (column 0), word-aligned.
     pub row: usize,
     /// The windows to scan, `first .. end` (addresses of `OpenWindow`s,
-    /// consecutive).
+    /// consecutive); the slot at `end` holds an end mark
+    /// (`OpenWindow::mark_end`), where the assembly stops.
     pub first: usize,
     pub end: usize,
     /// `bg_row - 2 row - 16` (wrapping), `bg_row` the address of the row's
@@ -65,7 +66,8 @@ impl RowScan {
     /// The arguments for the row `row_index` at `row` (word-aligned) with
     /// `background` and `gain` (the maps' values from the row's first
     /// pixel, if any) and the fixed `threshold`, over the open windows
-    /// `windows`.
+    /// `windows` but the last, which becomes the range's end mark
+    /// (`OpenWindow::mark_end`). Panics if `windows` is empty.
     pub fn new(
         row: &[u16],
         row_index: u16,
@@ -77,11 +79,12 @@ impl RowScan {
     ) -> RowScan {
         let row_address = row.as_ptr() as usize;
         let bg_row = background.map_or(0, |b| b.as_ptr() as usize);
+        windows.last_mut().expect("the end mark's slot").mark_end();
         let range = windows.as_mut_ptr_range();
         RowScan {
             row: row_address,
             first: range.start as usize,
-            end: range.end as usize,
+            end: range.end as usize - core::mem::size_of::<OpenWindow>(),
             bg_delta: bg_row.wrapping_sub(2 * row_address).wrapping_sub(16),
             position_delta: ((row_index as u32) << 6)
                 .wrapping_sub(4)
@@ -121,9 +124,14 @@ pub enum RowStop {
 /// `args` as [`RowScan::new`] makes them from live slices: the row holds
 /// every window's segment, the background map (`S::BACKGROUND`) covers the
 /// row, every window with a non-empty segment is word-aligned there and
-/// its buffer has `room` bytes between its tiers.
+/// its buffer has `room` bytes between its tiers; and the slot at `end`
+/// is a live `OpenWindow` marked as the range's end
+/// (`OpenWindow::mark_end`): the assembly walks the windows to that mark,
+/// one comparison a window fewer than counting them to `end`.
 #[inline(always)]
 pub unsafe fn row<S: Steps, const CHECK: bool>(args: &mut RowScan) -> RowStop {
+    // SAFETY: a live slot (the caller's contract).
+    debug_assert!(unsafe { &*(args.end as *const OpenWindow) }.is_end_mark());
     #[cfg(target_arch = "arm")]
     if !S::GAIN && !S::THRESHOLD {
         // SAFETY: the caller's contract; the routine's register use and

@@ -204,8 +204,11 @@ impl Engine<'_, '_> {
         if self.complement {
             self.update_complement();
         }
-        let range = self.memory.open[..self.open_len].as_mut_ptr_range();
-        self.scan.first = range.start as usize;
-        self.scan.end = range.end as usize;
+        // The row kernel's range: every open window, up to the end mark
+        // after the last (`memory.open` has a slot for it).
+        self.memory.open[self.open_len].mark_end();
+        let first = self.memory.open.as_mut_ptr() as usize;
+        self.scan.first = first;
+        self.scan.end = first + self.open_len * core::mem::size_of::<OpenWindow>();
     }
 }

@@ -44,6 +44,22 @@ impl Engine<'_, '_> {
         if COMPLEMENT && self.all_complement {
             return self.complement_row::<S, CHECK>(row_address, sink);
         }
+        self.push_mixed_row::<S, CHECK>(row_pixels, sink)
+    }
+
+    /// [`push_whole_row`](Self::push_whole_row) when some open window is
+    /// not kernel-ready: runs of ready windows to the kernel, the others
+    /// one by one. Out of line: its loop's registers (every window of a
+    /// row without selection takes it) then do not depend on the code
+    /// around it (once cost no selection +0.25 instructions a pixel).
+    #[inline(never)]
+    fn push_mixed_row<S: Steps, const CHECK: bool>(
+        &mut self,
+        row_pixels: &[u16],
+        sink: &mut impl OutputSink,
+    ) -> Result<(), usize> {
+        let row_address = row_pixels.as_ptr() as usize;
+        let row = self.row;
         let mut k = 0;
         while k < self.open_len {
             let ready = |w: &OpenWindow| w.segment_start != w.segment_end;
@@ -107,8 +123,33 @@ impl Engine<'_, '_> {
     /// The row kernel over the open windows `k .. end` (all
     /// `kernel_ready`), of the current row at `row_address` (word-aligned).
     /// On a pixel out of range (`CHECK`), the index of its window and its
-    /// address.
+    /// address. Out of line: the rows it serves mix ready windows with
+    /// others (whole rows of ready ones take `kernel_run_all`), and
+    /// inlined it cost their loop's registers (no selection +0.25
+    /// instructions a pixel once it could call `kernel_run_marked`).
+    #[inline(never)]
     pub(super) fn kernel_run<S: Steps, const CHECK: bool>(
+        &mut self,
+        row_address: usize,
+        k: usize,
+        end: usize,
+    ) -> Option<(usize, usize)> {
+        if end < self.open_len {
+            return self.kernel_run_marked::<S, CHECK>(row_address, k, end);
+        }
+        const SIZE: usize = core::mem::size_of::<OpenWindow>();
+        let first = self.scan.first;
+        self.scan.first = first + k * SIZE;
+        let stopped = self.kernel_pass::<S, CHECK>(row_address, first);
+        self.scan.first = first;
+        stopped
+    }
+
+    /// [`kernel_run`](Self::kernel_run) for windows `k .. end` short of
+    /// the last open one: the range's end mark on window `end` for the
+    /// pass (after the last open window there is always one).
+    #[inline(never)]
+    fn kernel_run_marked<S: Steps, const CHECK: bool>(
         &mut self,
         row_address: usize,
         k: usize,
@@ -118,7 +159,9 @@ impl Engine<'_, '_> {
         let (first, all) = (self.scan.first, self.scan.end);
         self.scan.first = first + k * SIZE;
         self.scan.end = first + end * SIZE;
+        let was = self.memory.open[end].mark_end();
         let stopped = self.kernel_pass::<S, CHECK>(row_address, first);
+        self.memory.open[end].unmark_end(was);
         self.scan.first = first;
         self.scan.end = all;
         stopped
