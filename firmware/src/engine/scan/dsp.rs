@@ -170,7 +170,7 @@ macro_rules! kernel {
                 "ldrd r10, r11, [lr, #{front_end}]",
                 hint_to_r12!($bg),
                 "b 5f",
-                // The hot loop (its exit after the handlers): the
+                // The hot loop and its exit, then the handlers: the
                 // second word's handler comes first, so that both
                 // `cbnz` reach theirs.
                 "13:",
@@ -183,7 +183,17 @@ macro_rules! kernel {
                 "17:",
                 "cmp r5, r6",
                 "bne 13b",
-                "b 19f",
+                // The hot loop's exit: the tiers' ends stored, room and
+                // attention checked (the raise or the stop at 20:).
+                "strd r10, r11, [lr, #{front_end}]",
+                "sub r0, r11, r10",
+                "ldrh r3, [lr, #{room}]",
+                "cmp r0, r3",
+                "blo 18f",
+                "ldr r0, [lr, #{attention}]",
+                "cmp r10, r0",
+                "blo 1b",
+                "b 20f",
                 // The second word's pixels (at p - 4, p - 2); its high
                 // pixel after the first word's handler.
                 "5:",
@@ -221,17 +231,7 @@ macro_rules! kernel {
                 calibrate!($bg, 12),
                 admit!($bg, 3, "17b"),
                 "b 17b",
-                // The hot loop's exit: the tiers' ends stored, room and
-                // attention checked.
-                "19:",
-                "strd r10, r11, [lr, #{front_end}]",
-                "sub r0, r11, r10",
-                "ldrh r3, [lr, #{room}]",
-                "cmp r0, r3",
-                "blo 18f",
-                "ldr r0, [lr, #{attention}]",
-                "cmp r10, r0",
-                "blo 1b",
+                "20:",
                 // The front reached `attention`: the raise, if the engine
                 // prepared it (see `raise_admission`), else a stop.
                 // `raise - 1` is the raised admission's strictness
