@@ -59,16 +59,16 @@ pub struct CostModel {
 }
 
 impl CostModel {
-    /// Cortex-M4: CANARY 13.40 instr/px, 8x8 windows 33.15, last row 3,309.
-    pub const CORTEX_M4: CostModel = CostModel::fit(13.40, 33.15, 3309.0);
-    /// Cortex-M7: CANARY 13.36 instr/px, 8x8 windows 32.98, last row 3,298.
-    pub const CORTEX_M7: CostModel = CostModel::fit(13.36, 32.98, 3298.0);
+    /// Cortex-M4: CANARY 12.87 instr/px, 8x8 windows 31.93, last row 3,280.
+    pub const CORTEX_M4: CostModel = CostModel::fit(12.87, 31.93, 3280.0);
+    /// Cortex-M7: CANARY 12.81 instr/px, 8x8 windows 31.82, last row 3,266.
+    pub const CORTEX_M7: CostModel = CostModel::fit(12.81, 31.82, 3266.0);
     /// The STM32H743 (Cortex-M7) with its DCMI's 12-bit runs: the bench's
-    /// `canary-12bit-runs-512` row (13.65 instr/px, last row 5,517) against
-    /// its whole-row CANARY (13.36, 3,298) adds 0.29 instructions a pixel
-    /// and 2,219 after the last pixel to the Cortex-M7's model.
+    /// `canary-12bit-runs-512` row (13.17 instr/px, last row 5,391) against
+    /// its whole-row CANARY (12.81, 3,266) adds 0.36 instructions a pixel
+    /// and 2,125 after the last pixel to the Cortex-M7's model.
     pub const STM32H743: CostModel =
-        CostModel::CORTEX_M7.with_camera_runs(13.36, 3298.0, 13.65, 5517.0);
+        CostModel::CORTEX_M7.with_camera_runs(12.81, 3266.0, 13.17, 5391.0);
 
     /// The model through the bench's two rows (see the type's documentation).
     pub const fn fit(canary: f64, windows_8x8: f64, canary_last_row: f64) -> CostModel {
