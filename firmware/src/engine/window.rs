@@ -118,12 +118,16 @@ pub struct OpenWindow {
     /// `stream::last_row::PREPARED`, an address never reached, marks a
     /// window prepared for the frame's last row.
     pub(crate) attention: usize,
-    /// Bytes of room a segment can take (`8 width`): when less is left
-    /// after a segment, the kernel stops at the window.
-    pub(crate) room: u16,
     /// `floor - 1` (a lane of `lanes`) for the admission a raise sets: see
     /// `raise`.
     pub(crate) raise_lane: u16,
+    /// When a segment leaves at most this many bytes between the tiers,
+    /// less than the next segment may take (`8 (width - 1)`), the kernel
+    /// stops at the window. The high half of the word after `attention`,
+    /// which the kernel loads with it (one `LDRD`) and compares with the
+    /// bytes left shifted up 16: `raise_lane`, in the low half, is below
+    /// what one more byte left adds.
+    pub(crate) short_of_room: u16,
 
     /// The candidate buffer's first entry.
     pub(crate) buffer: usize,
@@ -189,8 +193,8 @@ impl OpenWindow {
         front_end: 0,
         back_start: 0,
         attention: 0,
-        room: 0,
         raise_lane: 0,
+        short_of_room: 0,
         buffer: 0,
         capacity: 0,
         buffer_number: 0,

@@ -108,7 +108,7 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
                 w.admit = admit;
                 w.hint = hint;
                 w.position_base = (k as u32) << 6;
-                w.room = 8 * width;
+                w.short_of_room = 8 * (width - 1);
                 // Three windows in four raise admission in the kernel when
                 // the front reaches `attention`, at or above the hint, or
                 // after counting the hint's copies.

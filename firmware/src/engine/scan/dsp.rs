@@ -183,17 +183,19 @@ macro_rules! kernel {
                 "17:",
                 "cmp r5, r6",
                 "bne 13b",
-                // The hot loop's exit: the tiers' ends stored, room and
-                // attention checked (the raise or the stop at 20:).
+                // The hot loop's exit: the tiers' ends stored, attention
+                // and room checked (r3: `raise_lane` and, above it,
+                // `short_of_room`; the bytes left, shifted up, against it).
+                // At attention, 20: checks room first, then raises or
+                // stops.
                 "strd r10, r11, [lr, #{front_end}]",
-                "sub r0, r11, r10",
-                "ldrh r3, [lr, #{room}]",
-                "cmp r0, r3",
-                "blo 18f",
-                "ldr r0, [lr, #{attention}]",
+                "ldrd r0, r3, [lr, #{attention}]",
                 "cmp r10, r0",
+                "bhs 20f",
+                "sub r0, r11, r10",
+                "cmp r3, r0, lsl #16",
                 "blo 1b",
-                "b 20f",
+                "b 18f",
                 // The second word's pixels (at p - 4, p - 2); its high
                 // pixel after the first word's handler.
                 "5:",
@@ -232,8 +234,12 @@ macro_rules! kernel {
                 admit!($bg, 3, "17b"),
                 "b 17b",
                 "20:",
-                // The front reached `attention`: the raise, if the engine
-                // prepared it (see `raise_admission`), else a stop.
+                "sub r0, r11, r10",
+                "cmp r3, r0, lsl #16",
+                "bhs 18f",
+                // The front reached `attention` with room left: the raise,
+                // if the engine prepared it (see `raise_admission`), else a
+                // stop.
                 // `raise - 1` is the raised admission's strictness
                 // (`Raise`): `admit = hint + strict`; from 3 on, a
                 // counting raise (70:).
@@ -346,7 +352,6 @@ macro_rules! kernel {
                 at_hint = const offset_of!(OpenWindow, at_hint),
                 n = const offset_of!(OpenWindow, n),
                 hint_ties = const offset_of!(OpenWindow, hint_ties.count),
-                room = const offset_of!(OpenWindow, room),
                 raise = const offset_of!(OpenWindow, raise),
                 raise_lane = const offset_of!(OpenWindow, raise_lane),
                 buffer = const offset_of!(OpenWindow, buffer),
@@ -371,6 +376,11 @@ const _: () = {
     assert!(offset_of!(OpenWindow, admit) == 12);
     assert!(offset_of!(OpenWindow, position_base) == 16);
     assert!(offset_of!(OpenWindow, back_start) == offset_of!(OpenWindow, front_end) + 4);
+    // The exit's `ldrd r0, r3` of `attention` and the word after it, whose
+    // high half is `short_of_room`.
+    assert!(offset_of!(OpenWindow, attention) % 4 == 0);
+    assert!(offset_of!(OpenWindow, raise_lane) == offset_of!(OpenWindow, attention) + 4);
+    assert!(offset_of!(OpenWindow, short_of_room) == offset_of!(OpenWindow, attention) + 6);
     assert!(core::mem::size_of::<OpenWindow>() < 4096);
 };
 

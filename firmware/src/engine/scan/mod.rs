@@ -118,13 +118,13 @@ pub enum RowStop {
 /// which grows) if `p >= hint`, else to the back (stored below
 /// `back_start`, which falls), in order of column. After a segment in
 /// which some pixel passed the lanes, it stops at the window if
-/// `back_start - front_end < room` or `front_end >= attention`.
+/// `back_start - front_end <= short_of_room` or `front_end >= attention`.
 ///
 /// # Safety
 /// `args` as [`RowScan::new`] makes them from live slices: the row holds
 /// every window's segment, the background map (`S::BACKGROUND`) covers the
 /// row, every window with a non-empty segment is word-aligned there and
-/// its buffer has `room` bytes between its tiers; and the slot at `end`
+/// its buffer has more than `short_of_room` bytes between its tiers; and the slot at `end`
 /// is a live `OpenWindow` marked as the range's end
 /// (`OpenWindow::mark_end`): the assembly walks the windows to that mark,
 /// one comparison a window fewer than counting them to `end`.
@@ -240,7 +240,7 @@ pub unsafe fn row_portable<S: Steps, const CHECK: bool>(args: &mut RowScan) -> R
             window.front_end = front_end;
             window.back_start = back_start;
             if passed {
-                if window.back_start - window.front_end < window.room as usize {
+                if window.back_start - window.front_end <= window.short_of_room as usize {
                     return RowStop::Attention(at);
                 }
                 if window.front_end >= window.attention {

@@ -109,8 +109,8 @@ impl Engine<'_, '_> {
                 front_end,
                 back_start,
                 attention: window_attention,
-                room,
                 raise_lane,
+                short_of_room,
                 buffer: window_buffer,
                 capacity: window_capacity,
                 buffer_number,
@@ -146,8 +146,8 @@ impl Engine<'_, '_> {
             *front_end = buffer;
             *back_start = buffer + capacity as usize * core::mem::size_of::<Entry>();
             *window_attention = usize::MAX;
-            *room = 8 * w.width;
             *raise_lane = 0;
+            *short_of_room = 8 * w.width.saturating_sub(1);
             *window_buffer = buffer;
             *window_capacity = capacity;
             *buffer_number = number;
