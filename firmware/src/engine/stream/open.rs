@@ -147,7 +147,8 @@ impl Engine<'_, '_> {
             *back_start = buffer + capacity as usize * core::mem::size_of::<Entry>();
             *window_attention = usize::MAX;
             *raise_lane = 0;
-            *short_of_room = 8 * w.width.saturating_sub(1);
+            // `width >= 1` (`Config::validate`).
+            *short_of_room = 8 * (w.width - 1);
             *window_buffer = buffer;
             *window_capacity = capacity;
             *buffer_number = number;
