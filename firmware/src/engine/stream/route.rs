@@ -126,7 +126,7 @@ impl Engine<'_, '_> {
     /// address. Out of line: the rows it serves mix ready windows with
     /// others (whole rows of ready ones take `kernel_run_all`), and
     /// inlined it cost their loop's registers (no selection +0.25
-    /// instructions a pixel once it could call `kernel_run_marked`).
+    /// instructions a pixel once it could call `kernel_pass_to`).
     #[inline(never)]
     pub(super) fn kernel_run<S: Steps, const CHECK: bool>(
         &mut self,
@@ -134,35 +134,33 @@ impl Engine<'_, '_> {
         k: usize,
         end: usize,
     ) -> Option<(usize, usize)> {
-        if end < self.open_len {
-            return self.kernel_run_marked::<S, CHECK>(row_address, k, end);
-        }
         const SIZE: usize = core::mem::size_of::<OpenWindow>();
         let first = self.scan.first;
         self.scan.first = first + k * SIZE;
-        let stopped = self.kernel_pass::<S, CHECK>(row_address, first);
+        let stopped = if end < self.open_len {
+            self.kernel_pass_to::<S, CHECK>(row_address, first, end)
+        } else {
+            self.kernel_pass::<S, CHECK>(row_address, first)
+        };
         self.scan.first = first;
         stopped
     }
 
-    /// [`kernel_run`](Self::kernel_run) for windows `k .. end` short of
-    /// the last open one: the range's end mark on window `end` for the
-    /// pass (after the last open window there is always one).
+    /// [`kernel_pass`](Self::kernel_pass) over the windows up to `end`,
+    /// short of the last open one: the range's end mark on window `end`
+    /// for the pass (after the last open window there is always one).
     #[inline(never)]
-    fn kernel_run_marked<S: Steps, const CHECK: bool>(
+    fn kernel_pass_to<S: Steps, const CHECK: bool>(
         &mut self,
         row_address: usize,
-        k: usize,
+        first: usize,
         end: usize,
     ) -> Option<(usize, usize)> {
-        const SIZE: usize = core::mem::size_of::<OpenWindow>();
-        let (first, all) = (self.scan.first, self.scan.end);
-        self.scan.first = first + k * SIZE;
-        self.scan.end = first + end * SIZE;
+        let all = self.scan.end;
+        self.scan.end = first + end * core::mem::size_of::<OpenWindow>();
         let was = self.memory.open[end].mark_end();
         let stopped = self.kernel_pass::<S, CHECK>(row_address, first);
         self.memory.open[end].unmark_end(was);
-        self.scan.first = first;
         self.scan.end = all;
         stopped
     }
