@@ -68,6 +68,7 @@ impl Engine<'_, '_> {
             self.free_len -= 1;
             let number = self.memory.free[self.free_len];
             let n = self.config.pixel_count(index);
+            // At most 64 x 64 (`Config::validate`): a u16.
             let pixels = w.width * w.height;
             if n != last_n || pixels != last_pixels {
                 // The stride is at least every window's least capacity (plan).
