@@ -28,6 +28,7 @@
 
 use super::select::Entry;
 use super::window::{OpenWindow, SubapertureState};
+use core::mem::offset_of;
 
 /// Borrowed storage for an [`Engine`](super::Engine).
 pub struct EngineMemory<'m> {
@@ -170,6 +171,8 @@ struct OpenSlots<const OPEN: usize> {
 
 impl<const OPEN: usize> OpenSlots<OPEN> {
     fn as_slice(&mut self) -> &mut [OpenWindow] {
+        // `end` right after the array, as the slice below needs.
+        const { assert!(offset_of!(Self, end) == OPEN * size_of::<OpenWindow>()) };
         // SAFETY: `repr(C)` puts `end` right after the array, with no
         // padding (an `OpenWindow`'s size is a multiple of its alignment),
         // so the struct is `OPEN + 1` consecutive `OpenWindow`s, borrowed
