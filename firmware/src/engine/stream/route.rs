@@ -123,11 +123,7 @@ impl Engine<'_, '_> {
     /// The row kernel over the open windows `k .. end` (all
     /// `kernel_ready`), of the current row at `row_address` (word-aligned).
     /// On a pixel out of range (`CHECK`), the index of its window and its
-    /// address. Out of line: the rows it serves mix ready windows with
-    /// others (whole rows of ready ones take `kernel_run_all`), and
-    /// inlined it cost their loop's registers (no selection +0.25
-    /// instructions a pixel once it could call `kernel_pass_to`).
-    #[inline(never)]
+    /// address.
     pub(super) fn kernel_run<S: Steps, const CHECK: bool>(
         &mut self,
         row_address: usize,
