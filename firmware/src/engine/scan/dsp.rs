@@ -6,8 +6,8 @@
 //! a background map, the window's hint in the hot loop), lr the window. On
 //! the stack: the row and `position_delta` (one `LDRD` a window),
 //! `max_raw`, the arguments (and a word for the stack's 8-byte
-//! alignment). The windows are walked to the end mark
-//! after the last (see `scan::row`).
+//! alignment). The windows are walked to the end mark after the last
+//! (see `scan::row`).
 //!
 //! A segment is scanned by the *cold* loop until some pixel passes the
 //! lanes; the pixel handlers return into the *hot* copy of the loop,
@@ -150,7 +150,7 @@ macro_rules! kernel {
                 "1:",
                 "add lr, lr, #{size}",
                 "b 2b",
-                // An empty segment, or the end mark: done.
+                // An empty segment: the next window; the end mark: done.
                 "8:",
                 "beq 1b",
                 "movs r0, #0",
