@@ -124,8 +124,8 @@ pub enum RowStop {
 /// `args` as [`RowScan::new`] makes them from live slices: the row holds
 /// every window's segment, the background map (`S::BACKGROUND`) covers the
 /// row, every window with a non-empty segment is word-aligned there and
-/// its buffer has more than `short_of_room` bytes between its tiers; and the slot at `end`
-/// is a live `OpenWindow` marked as the range's end
+/// its buffer has more than `short_of_room` bytes between its tiers; and
+/// the slot at `end` is a live `OpenWindow` marked as the range's end
 /// (`OpenWindow::mark_end`): the assembly walks the windows to that mark,
 /// one comparison a window fewer than counting them to `end`.
 #[inline(always)]
