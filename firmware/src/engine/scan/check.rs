@@ -79,10 +79,13 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
             let floor = next(top + 2);
             let admit = next(16 * top) as i32 - (16 * top / 4) as i32;
             let hint = admit + next(16 * top / 2 + 1) as i32;
-            let raise = match next(4) {
+            let raise = match next(5) {
                 0 => Raise::NONE,
                 1 => Raise::AT_HINT,
                 2 => Raise::ABOVE_HINT,
+                // Found or not in the back entries below (`hint - 1` in
+                // about one entry of three) or the row's.
+                3 => Raise::LOWER,
                 // Often few copies, where the proof turns on one.
                 _ => {
                     let most = if next(2) == 0 { 3 } else { 16 };
@@ -109,9 +112,9 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
                 w.hint = hint;
                 w.position_base = (k as u32) << 6;
                 w.short_of_room = 8 * (width - 1);
-                // Three windows in four raise admission in the kernel when
-                // the front reaches `attention`, at or above the hint, or
-                // after counting the hint's copies.
+                // Four windows in five raise admission in the kernel when
+                // the front reaches `attention`, at or above the hint,
+                // after lowering it or after counting the hint's copies.
                 w.raise = raise;
                 w.raise_lane = raise_floor.wrapping_sub(1) as u16;
                 w.low = admit;
@@ -146,11 +149,16 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
         }
         // What a counting raise reads: N, the hint's ties, the front's
         // entries (copies of the hint among them) and how many were
-        // counted, with how many copies.
+        // counted, with how many copies; and a lowering one, the back's
+        // entries (the window has no hint ties).
         for k in 0..made {
             let most = if next(2) == 0 { 8 } else { share as u32 + 1 };
             let n = next(most) as u16;
-            let ties = next(3) as u16;
+            let ties = if windows[0][k].raise == Raise::LOWER {
+                0
+            } else {
+                next(3) as u16
+            };
             let front = windows[0][k].front();
             let counted = next(front as u32 + 1) as usize;
             let values: [i32; SHARE] =
@@ -159,6 +167,10 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
                 .iter()
                 .filter(|&&v| v == windows[0][k].hint)
                 .count() as u16;
+            let below: [Entry; SHARE] = core::array::from_fn(|_| Entry {
+                value: windows[0][k].hint.wrapping_sub(1 + next(3) as i32),
+                position: next(u32::MAX),
+            });
             for copies in windows.iter_mut() {
                 let w = &mut copies[k];
                 w.n = n;
@@ -174,6 +186,13 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
                                 position: e as u32,
                             },
                         )
+                    };
+                }
+                let back = w.back();
+                for (e, entry) in (share - back..share).zip(below) {
+                    // SAFETY: the window's own back entries.
+                    unsafe {
+                        ((w.buffer + e * core::mem::size_of::<Entry>()) as *mut Entry).write(entry)
                     };
                 }
             }
@@ -250,6 +269,7 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
             // the buffer: the twin's and the kernel's buffers differ).
             let raised = |w: &OpenWindow| {
                 (
+                    (w.hint, w.hint_ties),
                     w.at_hint,
                     w.counted,
                     w.floor,

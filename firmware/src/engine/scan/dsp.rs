@@ -241,8 +241,10 @@ macro_rules! kernel {
                 // if the engine prepared it (see `raise_admission`), else a
                 // stop.
                 // `raise - 1` is the raised admission's strictness
-                // (`Raise`): `admit = hint + strict`; from 3 on, a
-                // counting raise (70:).
+                // (`Raise`): `admit = hint + strict`; 3: the hint lowered
+                // first (76:, told apart at 70: by this comparison's
+                // flags); above, a counting raise of `raise / 4`
+                // copies (70:).
                 "ldrb r0, [lr, #{raise}]",
                 "cbz r0, 18f",
                 "cmp r0, #3",
@@ -272,10 +274,11 @@ macro_rules! kernel {
                 // A counting raise (`count_and_prove`; r4-r9 are free
                 // here, the next window reloads them): the front's copies
                 // of the hint since `counted` added to `at_hint` (r7),
-                // then the proof (N above the hint, `raise - 2` copies
+                // then the proof (N above the hint, `raise / 4` copies
                 // with its ties) or the next attention.
                 "70:",
-                "sub r8, r0, #2",
+                "beq 76f",
+                "lsrs r8, r0, #2",
                 "ldr r4, [lr, #{buffer}]",
                 "ldrh r0, [lr, #{counted}]",
                 "add r5, r4, r0, lsl #3",
@@ -321,6 +324,39 @@ macro_rules! kernel {
                 "75:",
                 "movs r0, #1",
                 "b 71b",
+                // Lowering the hint (`Raise::LOWER`, `raise_below_front`;
+                // r1-r9 are free): the first copy of `hint - 1` in the back
+                // tier, from `back_start` up (none: a stop), becomes the
+                // hint and its one tie (the window had none), nothing in
+                // the front equals it (`at_hint` 0, all counted); then the
+                // raise above it.
+                "76:",
+                "ldr r6, [lr, #{hint}]",
+                "ldr r7, [lr, #{buffer}]",
+                "ldrh r3, [lr, #{capacity}]",
+                "sub r6, r6, #1",
+                "add r4, r7, r3, lsl #3",
+                "mov r5, r11",
+                "77:",
+                "cmp r5, r4",
+                "bhs 18b",
+                "ldrd r1, r2, [r5], #8",
+                "cmp r1, r6",
+                "bne 77b",
+                "str r6, [lr, #{hint}]",
+                "and r3, r2, #63",
+                "str r3, [lr, #{ties_i}]",
+                "ubfx r3, r2, #6, #10",
+                "str r3, [lr, #{ties_j}]",
+                "movs r3, #1",
+                "strh r3, [lr, #{hint_ties}]",
+                "movs r3, #0",
+                "strh r3, [lr, #{at_hint}]",
+                "sub r3, r10, r7",
+                "lsrs r3, r3, #3",
+                "strh r3, [lr, #{counted}]",
+                "movs r0, #1",
+                "b 71b",
                 // Out of range: the pixel's address, and the window
                 // tagged.
                 "90:",
@@ -352,6 +388,8 @@ macro_rules! kernel {
                 at_hint = const offset_of!(OpenWindow, at_hint),
                 n = const offset_of!(OpenWindow, n),
                 hint_ties = const offset_of!(OpenWindow, hint_ties.count),
+                ties_i = const offset_of!(OpenWindow, hint_ties.sum_i),
+                ties_j = const offset_of!(OpenWindow, hint_ties.sum_j),
                 raise = const offset_of!(OpenWindow, raise),
                 raise_lane = const offset_of!(OpenWindow, raise_lane),
                 buffer = const offset_of!(OpenWindow, buffer),

@@ -29,7 +29,7 @@
 
 use super::calibrate::{self, Steps};
 use super::prefilter;
-use super::select::Entry;
+use super::select::{Entry, Ties};
 use super::window::{OpenWindow, Raise};
 
 /// What the row kernel needs for one camera row (read by the assembly at
@@ -244,14 +244,21 @@ pub unsafe fn row_portable<S: Steps, const CHECK: bool>(args: &mut RowScan) -> R
                     return RowStop::Attention(at);
                 }
                 if window.front_end >= window.attention {
-                    if window.raise == Raise::NONE {
-                        return RowStop::Attention(at);
-                    }
                     // A counting raise that does not prove sets the
-                    // next attention instead.
-                    let proved = match window.raise.copies() {
-                        Some(copies) => count_and_prove(window, copies),
-                        None => true,
+                    // next attention instead; the others stop.
+                    let raise = window.raise;
+                    let proved = match raise {
+                        Raise::NONE => return RowStop::Attention(at),
+                        Raise::LOWER => {
+                            if !lower_hint(window) {
+                                return RowStop::Attention(at);
+                            }
+                            true
+                        }
+                        _ => match raise.copies() {
+                            Some(copies) => count_and_prove(window, copies),
+                            None => true,
+                        },
                     };
                     if proved {
                         raise_admission(window);
@@ -279,6 +286,34 @@ fn raise_admission(window: &mut OpenWindow) {
     window.strict = strict;
     window.back_start = window.buffer + window.capacity as usize * core::mem::size_of::<Entry>();
     window.attention = usize::MAX;
+}
+
+/// `Raise::LOWER` before its raise: the hint lowered to `hint - 1` at the
+/// first copy of it in the back tier (from `back_start` up), which becomes
+/// the hint's one tie (the window had none); every front entry is above
+/// it. `false` (nothing changed) if the back holds no copy.
+#[inline(always)]
+fn lower_hint(window: &mut OpenWindow) -> bool {
+    const ENTRY: usize = core::mem::size_of::<Entry>();
+    let end = window.buffer + window.capacity as usize * ENTRY;
+    // With a back tier, its values are below the hint: no overflow.
+    let level = window.hint.wrapping_sub(1);
+    let mut at = window.back_start;
+    while at < end {
+        // SAFETY: between `back_start` and the buffer's end: the window's
+        // live back entries.
+        let entry = unsafe { (at as *const Entry).read() };
+        if entry.value == level {
+            window.hint = level;
+            window.hint_ties = Ties::NONE;
+            window.hint_ties.add(entry.position as u16);
+            window.at_hint = 0;
+            window.counted = ((window.front_end - window.buffer) / ENTRY) as u16;
+            return true;
+        }
+        at += ENTRY;
+    }
+    false
 }
 
 /// A counting raise (`Raise::counting`): the front's copies of the hint

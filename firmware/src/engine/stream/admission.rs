@@ -113,7 +113,8 @@ fn raise(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16, strict: boo
 /// hint are not counted either, `Tiers::hint_ties_settled`): the previous
 /// level, `hint - 1`, found at the first of its copies (a faint spot's
 /// window holds ~16 of them among ~60 back entries), else the back's
-/// largest.
+/// largest. The row kernel does the first itself (`Raise::LOWER`, see
+/// [`prepare_raise`]); the engine, after a stop, either.
 #[inline(always)]
 fn raise_below_front(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) -> bool {
     if window.strict || window.hint_ties.count != 0 || window.front() < window.n as usize {
@@ -207,8 +208,8 @@ impl FreshWindow {
         let (beyond_n, raise) = match rule {
             SelectionRule::SubtractNext => (1, Raise::ABOVE_HINT),
             SelectionRule::Threshold => (0, Raise::AT_HINT),
-            // No hint ties yet: `Engine::attend` raises it.
-            SelectionRule::SubtractNextDistinct => (0, Raise::NONE),
+            // No hint ties yet: lowered to the previous level first.
+            SelectionRule::SubtractNextDistinct => (0, Raise::LOWER),
             SelectionRule::SubtractMean { count } => {
                 // M is 1..=16 (`Config::validate`).
                 (count as usize, Raise::counting(count as u8))
@@ -288,10 +289,12 @@ pub(super) fn admit_at(window: &mut OpenWindow, config: &Config<'_>, max_raw: u1
 ///   kernel counts the front's copies that arrived since the last count
 ///   (`settle_at_hint`'s count) and raises to `p > hint` if they prove
 ///   it, else sets the next attention as [`attention`] would: what
-///   `Engine::attend` did, without leaving the kernel. A
-///   `subtract-next-distinct` window without hint ties (its hint one above
-///   the previous level) is raised by `Engine::attend` instead, which
-///   lowers its hint first ([`raise_below_front`]).
+///   `Engine::attend` did, without leaving the kernel.
+/// - `subtract-next-distinct` without hint ties (its hint one above the
+///   previous level): the kernel lowers the hint to `hint - 1` where the
+///   back tier holds a copy of it and raises above it (`Raise::LOWER`:
+///   [`raise_below_front`]'s usual case); else it stops, and
+///   `Engine::attend` lowers the hint to the back's largest value.
 ///
 /// Not for a raised floor of 0 (every pixel passes: the general path's).
 #[inline(always)]
@@ -302,7 +305,7 @@ fn prepare_raise(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) {
             Raise::AT_HINT
         }
         SelectionRule::Threshold => Raise::NONE,
-        SelectionRule::SubtractNextDistinct if window.hint_ties.count == 0 => Raise::NONE,
+        SelectionRule::SubtractNextDistinct if window.hint_ties.count == 0 => Raise::LOWER,
         SelectionRule::SubtractNextDistinct => Raise::counting(1),
         // M is 1..=16 (`Config::validate`).
         SelectionRule::SubtractMean { count } => Raise::counting(count as u8),
@@ -310,8 +313,9 @@ fn prepare_raise(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) {
     set_raise::<false>(window, config, max_raw, raise);
 }
 
-/// [`prepare_raise`] once the raise is chosen: its raw floor, if the
-/// window can take it, else no raise. `FRESH`: a window just opened with
+/// [`prepare_raise`] once the raise is chosen: its raw floor (see
+/// [`Raise::admits_hint`]), if the window can take it, else no raise.
+/// `FRESH`: a window just opened with
 /// a candidate buffer ([`FreshWindow`]), which is not strict and has no
 /// low ties, so those tests are left out (they cost every opening ~17
 /// instructions on Cortex-M4, loaded from the window just written).
@@ -322,7 +326,7 @@ fn set_raise<const FRESH: bool>(
     max_raw: u16,
     raise: Raise,
 ) {
-    let strict = raise != Raise::AT_HINT;
+    let strict = !raise.admits_hint();
     let mut floor = 0;
     // `hint + 1` must not overflow: the kernel adds without saturating.
     if raise != Raise::NONE
