@@ -528,7 +528,7 @@ impl Engine<'_, '_> {
     /// pixels admitted on the general path. Out of line, so that a window
     /// without selection does not pay for its registers: in one body with
     /// it, Cortex-M7's no-selection row cost 0.3-0.4 instructions a pixel
-    /// more (16.92-17.05 against 16.62).
+    /// more (16.92-17.05 against 16.6).
     #[inline(never)]
     fn segment_candidates<S: Steps, const CHECK: bool>(
         &mut self,
