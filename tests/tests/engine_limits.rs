@@ -580,3 +580,126 @@ fn extreme_values_at_the_arithmetic_bounds() {
         }
     }
 }
+
+/// SPEC.md §5's slope, written here from the spec: `clamp(floor((S 2^16 +
+/// F) / 2F) - r)` with `S = 2 sum(w i) - (w - 1) F`.
+fn spec_slope(sum_wi: i64, flux: i64, width: u16, reference: i32) -> i32 {
+    let s = 2 * sum_wi as i128 - (width as i128 - 1) * flux as i128;
+    let q = (s * (1 << 16) + flux as i128).div_euclid(2 * flux as i128);
+    (q - reference as i128).clamp(i32::MIN as i128, i32::MAX as i128) as i32
+}
+
+/// The centroider's 32-bit path (flux below 2^22, coordinate sums below
+/// 2^29, quotients below 2^14 pixels) and its 64-bit one, at and around
+/// each bound, against the spec's arithmetic: fluxes of 1 and 2^22 - 1 ..
+/// 2^22 + 1, sums at +-2^29 and quotients at +-2^14, references at the
+/// ends of i32 (the saturation), every window size's extremes.
+#[test]
+fn slopes_at_the_bounds_of_the_32_bit_path() {
+    use brightpix_firmware::engine::centroid::{Centroider, Moments};
+    let references: Vec<[i32; 2]> = vec![[0, 0], [i32::MIN, i32::MAX], [-12345, 67890]];
+    let fluxes = [
+        1i64,
+        2,
+        3,
+        255,
+        256,
+        257,
+        (1 << 21) + 7,
+        (1 << 22) - 1,
+        1 << 22,
+        (1 << 22) + 1,
+        1 << 30,
+        (1 << 38) - 1,
+    ];
+    let mut checked = 0usize;
+    for (r, reference) in references.iter().enumerate() {
+        let parameters = Centroid {
+            reference_slopes: Some(&references),
+            ..Centroid::default()
+        };
+        let centroider = Centroider::new(parameters);
+        for &flux in &fluxes {
+            for width in [1u16, 2, 16, 63, 64] {
+                // Sums at the 32-bit path's bounds, at the quotient's
+                // (|S / 2F| near 2^14), and at the window's own extremes.
+                let centre = (width as i64 - 1) * flux / 2;
+                let mut sums = vec![
+                    0,
+                    centre,
+                    (width as i64 - 1) * flux,
+                    (1 << 29) - 1,
+                    1 << 29,
+                    -(1 << 29),
+                    -(1 << 29) - 1,
+                    1 << 30,
+                    (1 << 31) - 1,
+                    -(1 << 31),
+                    1 << 40,
+                ];
+                let powers = (10..21).flat_map(|k| [(1i64 << k) - 1, 1 << k]);
+                for q in powers.flat_map(|q| [q, -q, -q - 1]) {
+                    // S = 2 sum - (w - 1) F near q 2F.
+                    let s = q * 2 * flux;
+                    sums.push((s + (width as i64 - 1) * flux) / 2);
+                    sums.push((s + (width as i64 - 1) * flux) / 2 + 1);
+                }
+                // Within SPEC.md §5's bounds: |sum(w i)| < 2^26 4096 64 = 2^44.
+                sums.retain(|s: &i64| s.abs() < 1 << 44);
+                for &sum_wi in &sums {
+                    for &sum_wj in &[sums[1], sum_wi] {
+                        let moments = Moments {
+                            sum_w: flux,
+                            sum_wi,
+                            sum_wj,
+                        };
+                        let result = centroider.result(r as u16, moments, width, 64 - width + 1);
+                        assert!(result.valid);
+                        assert_eq!(
+                            (result.slope_x, result.slope_y),
+                            (
+                                spec_slope(sum_wi, flux, width, reference[0]),
+                                spec_slope(sum_wj, flux, 64 - width + 1, reference[1])
+                            ),
+                            "flux {flux}, sums {sum_wi} {sum_wj}, width {width}, reference {reference:?}"
+                        );
+                        checked += 1;
+                    }
+                }
+            }
+        }
+    }
+    // Random moments within the spec's bounds, fluxes spread over every
+    // scale (log-uniform), so that remainders near the divisor occur at
+    // each flux bound.
+    let centroider = Centroider::new(Centroid::default());
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    for _ in 0..200_000 {
+        let flux = ((next() >> 26) >> (next() % 38)).max(1) as i64;
+        let width = (next() % 64 + 1) as u16;
+        let spread = 1i64 << (next() % 45);
+        let sum_wi = (next() % (2 * spread as u64)) as i64 - spread;
+        let moments = Moments {
+            sum_w: flux,
+            sum_wi,
+            sum_wj: sum_wi / 3,
+        };
+        let result = centroider.result(0, moments, width, width);
+        assert_eq!(
+            (result.slope_x, result.slope_y),
+            (
+                spec_slope(sum_wi, flux, width, 0),
+                spec_slope(sum_wi / 3, flux, width, 0)
+            ),
+            "flux {flux}, sum {sum_wi}, width {width}"
+        );
+        checked += 1;
+    }
+    assert!(checked > 200_000);
+}

@@ -121,21 +121,139 @@ impl<'a> Centroider<'a> {
                 valid: false,
             };
         }
-        // Centred half-pixel coordinates a = 2i - (w - 1): S = 2 sum(w i) - (w - 1) F.
-        let sum_a = 2 * moments.sum_wi - (width as i64 - 1) * flux;
-        let sum_b = 2 * moments.sum_wj - (height as i64 - 1) * flux;
         let [reference_x, reference_y] = self
             .parameters
             .reference_slopes
             .map_or([0, 0], |r| r[index as usize]);
+        let (slope_x, slope_y) = slopes_narrow(&moments, width, height, reference_x, reference_y)
+            .unwrap_or_else(|| slopes_wide(&moments, width, height, reference_x, reference_y));
         SubapertureResult {
             index,
-            slope_x: slope(sum_a, flux, reference_x),
-            slope_y: slope(sum_b, flux, reference_y),
+            slope_x,
+            slope_y,
             flux,
             valid: true,
         }
     }
+}
+
+/// Both slopes of moments with `1 <= F < 2^22` and `|sum(w i)|`,
+/// `|sum(w j)| < 2^29` (a window's usual moments: `|sum(w i)| <= 63 F` for
+/// non-negative weights) in 32-bit arithmetic, or `None` (the 64-bit
+/// path): `S = 2 sum(w i) - (w - 1) F` then fits 31 bits, and
+/// [`quotient_narrow`] the rounded quotient. Every window's result (the
+/// engine's and the QEMU floor's) passes here: on Cortex-M4 ~64
+/// instructions fewer a window than the 64-bit path's range checks,
+/// products and clamps (CANARY 0.25 instructions a pixel, 8x8 windows 1.0).
+#[inline(always)]
+fn slopes_narrow(
+    moments: &Moments,
+    width: u16,
+    height: u16,
+    reference_x: i32,
+    reference_y: i32,
+) -> Option<(i32, i32)> {
+    const BOUND: i64 = 1 << 29;
+    let flux = moments.sum_w;
+    if !(1..1 << 22).contains(&flux)
+        || !(-BOUND..BOUND).contains(&moments.sum_wi)
+        || !(-BOUND..BOUND).contains(&moments.sum_wj)
+    {
+        return None;
+    }
+    let f = flux as i32;
+    // |S| < 2^30 + 63 * 2^22 < 2^31.
+    let sum_a = 2 * moments.sum_wi as i32 - (width as i32 - 1) * f;
+    let sum_b = 2 * moments.sum_wj as i32 - (height as i32 - 1) * f;
+    let slope_x = quotient_narrow(sum_a, f as u32)?.saturating_sub(reference_x);
+    let slope_y = quotient_narrow(sum_b, f as u32)?.saturating_sub(reference_y);
+    Some((slope_x, slope_y))
+}
+
+/// Both slopes in 64-bit arithmetic (flux at least 1): rare, out of line,
+/// so that [`slopes_narrow`] keeps its registers.
+#[cold]
+#[inline(never)]
+fn slopes_wide(
+    moments: &Moments,
+    width: u16,
+    height: u16,
+    reference_x: i32,
+    reference_y: i32,
+) -> (i32, i32) {
+    let flux = moments.sum_w;
+    // Centred half-pixel coordinates a = 2i - (w - 1): S = 2 sum(w i) - (w - 1) F.
+    let sum_a = 2 * moments.sum_wi - (width as i64 - 1) * flux;
+    let sum_b = 2 * moments.sum_wj - (height as i64 - 1) * flux;
+    (
+        slope(sum_a, flux, reference_x),
+        slope(sum_b, flux, reference_y),
+    )
+}
+
+/// `floor((s * 2^16 + F) / 2F)` for `1 <= F < 2^22` when `|s / 2F| < 2^14`
+/// (else `None`), so that the quotient fits 31 bits: [`long_division`].
+#[inline(always)]
+fn quotient_narrow(s: i32, flux: u32) -> Option<i32> {
+    let (high, low) = long_division(s, flux);
+    // -2^14 <= high < 2^14: high 2^16 + low (below 2^17) fits.
+    (((high + (1 << 14)) as u32) < 1 << 15).then(|| (high << 16) + low as i32)
+}
+
+/// `clamp(floor((s * 2^16 + F) / 2F) - reference)`: round half up of
+/// s / 2F pixels in 2^-16 pixel.
+#[inline]
+fn slope(sum: i64, flux: i64, reference: i32) -> i32 {
+    let quotient = rounded_quotient(sum, flux);
+    (quotient - reference as i64).clamp(i32::MIN as i64, i32::MAX as i64) as i32
+}
+
+/// `floor((sum * 2^16 + flux) / (2 flux))` for `flux >= 1` (SPEC.md §5):
+/// with three 32-bit divisions when the operands allow (almost always), a
+/// 64-bit division otherwise. [`rounded_quotient_portable`] is its twin.
+#[inline]
+pub fn rounded_quotient(sum: i64, flux: i64) -> i64 {
+    match rounded_quotient_narrow(sum, flux) {
+        Some(q) => q,
+        None => rounded_quotient_portable(sum, flux),
+    }
+}
+
+/// The definition of [`rounded_quotient`]: one 64-bit division (a library
+/// call of about a hundred instructions on Cortex-M).
+#[inline]
+pub fn rounded_quotient_portable(sum: i64, flux: i64) -> i64 {
+    ((sum << 16) + flux).div_euclid(2 * flux)
+}
+
+/// [`long_division`] when the divisor `2 flux < 2^23` and `|sum| < 2^31`.
+#[inline]
+fn rounded_quotient_narrow(sum: i64, flux: i64) -> Option<i64> {
+    if !(1..1 << 22).contains(&flux) || !(-(1i64 << 31)..1 << 31).contains(&sum) {
+        return None;
+    }
+    let (high, low) = long_division(sum as i32, flux as u32);
+    Some(((high as i64) << 16) + low as i64)
+}
+
+/// `floor((s * 2^16 + F) / D)` with `D = 2F < 2^23` as `high 2^16 + low`,
+/// by long division in base 2^8 with 32-bit hardware division: with
+/// `s = high D + ra` (`0 <= ra < D`) and `F = fh 2^8 + fl`,
+/// `s 2^16 + F = high D 2^16 + ((ra 2^8 + fh) 2^8 + fl)`, and the inner term
+/// is divided in two steps whose dividends stay below 2^32; `low < 2^17`.
+#[inline(always)]
+fn long_division(s: i32, flux: u32) -> (i32, u32) {
+    let d = 2 * flux as i32;
+    let (mut high, mut ra) = (s / d, s % d);
+    if ra < 0 {
+        high -= 1;
+        ra += d;
+    }
+    let d = d as u32;
+    let x1 = ((ra as u32) << 8) + (flux >> 8);
+    let (qb, rb) = (x1 / d, x1 % d);
+    let qc = ((rb << 8) + (flux & 0xff)) / d;
+    (high, (qb << 8) + qc)
 }
 
 /// Sums over the candidates above a level `u`: `p`, `p i`, `p j`, their
@@ -207,56 +325,6 @@ pub fn sums_above_portable(entries: &[Entry], u: i32) -> SumsAbove {
         }
     }
     above
-}
-
-/// `clamp(floor((s * 2^16 + F) / 2F) - reference)`: round half up of
-/// s / 2F pixels in 2^-16 pixel.
-#[inline]
-fn slope(sum: i64, flux: i64, reference: i32) -> i32 {
-    let quotient = rounded_quotient(sum, flux);
-    (quotient - reference as i64).clamp(i32::MIN as i64, i32::MAX as i64) as i32
-}
-
-/// `floor((sum * 2^16 + flux) / (2 flux))` for `flux >= 1` (SPEC.md §5):
-/// with three 32-bit divisions when the operands allow (almost always), a
-/// 64-bit division otherwise. [`rounded_quotient_portable`] is its twin.
-#[inline]
-pub fn rounded_quotient(sum: i64, flux: i64) -> i64 {
-    match rounded_quotient_narrow(sum, flux) {
-        Some(q) => q,
-        None => rounded_quotient_portable(sum, flux),
-    }
-}
-
-/// The definition of [`rounded_quotient`]: one 64-bit division (a library
-/// call of about a hundred instructions on Cortex-M).
-#[inline]
-pub fn rounded_quotient_portable(sum: i64, flux: i64) -> i64 {
-    ((sum << 16) + flux).div_euclid(2 * flux)
-}
-
-/// Long division in base 2^8 with 32-bit hardware division, when the
-/// divisor `D = 2 flux < 2^23` and `|sum| < 2^31`: with `sum = qa D + ra`
-/// (`0 <= ra < D`) and `flux = fh 2^8 + fl`,
-/// `sum 2^16 + flux = qa D 2^16 + ((ra 2^8 + fh) 2^8 + fl)`, and the inner
-/// term is divided in two steps whose dividends stay below 2^32.
-#[inline]
-fn rounded_quotient_narrow(sum: i64, flux: i64) -> Option<i64> {
-    let divisor = 2 * flux;
-    if !(1..1 << 23).contains(&divisor) || !(-(1i64 << 31)..1 << 31).contains(&sum) {
-        return None;
-    }
-    let (d, s, f) = (divisor as i32, sum as i32, flux as u32);
-    let (mut qa, mut ra) = (s / d, s % d);
-    if ra < 0 {
-        qa -= 1;
-        ra += d;
-    }
-    let d = d as u32;
-    let x1 = ((ra as u32) << 8) + (f >> 8);
-    let (qb, rb) = (x1 / d, x1 % d);
-    let qc = ((rb << 8) + (f & 0xff)) / d;
-    Some(((qa as i64) << 16) + ((qb as i64) << 8) + qc as i64)
 }
 
 /// For a segment calibrated with a background map only: the sum of the

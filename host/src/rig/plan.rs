@@ -59,16 +59,16 @@ pub struct CostModel {
 }
 
 impl CostModel {
-    /// Cortex-M4: CANARY 12.66 instr/px, 8x8 windows 31.18, last row 3,279.
-    pub const CORTEX_M4: CostModel = CostModel::fit(12.66, 31.18, 3279.0);
-    /// Cortex-M7: CANARY 12.62 instr/px, 8x8 windows 31.15, last row 3,270.
-    pub const CORTEX_M7: CostModel = CostModel::fit(12.62, 31.15, 3270.0);
+    /// Cortex-M4: CANARY 12.41 instr/px, 8x8 windows 30.18, last row 2,831.
+    pub const CORTEX_M4: CostModel = CostModel::fit(12.41, 30.18, 2831.0);
+    /// Cortex-M7: CANARY 12.35 instr/px, 8x8 windows 30.09, last row 2,794.
+    pub const CORTEX_M7: CostModel = CostModel::fit(12.35, 30.09, 2794.0);
     /// The STM32H743 (Cortex-M7) with its DCMI's 12-bit runs: the bench's
-    /// `canary-12bit-runs-512` row (12.98 instr/px, last row 5,392) against
-    /// its whole-row CANARY (12.62, 3,270) adds 0.36 instructions a pixel
+    /// `canary-12bit-runs-512` row (12.72 instr/px, last row 4,916) against
+    /// its whole-row CANARY (12.35, 2,794) adds 0.37 instructions a pixel
     /// and 2,122 after the last pixel to the Cortex-M7's model.
     pub const STM32H743: CostModel =
-        CostModel::CORTEX_M7.with_camera_runs(12.62, 3270.0, 12.98, 5392.0);
+        CostModel::CORTEX_M7.with_camera_runs(12.35, 2794.0, 12.72, 4916.0);
 
     /// The model through the bench's two rows (see the type's documentation).
     pub const fn fit(canary: f64, windows_8x8: f64, canary_last_row: f64) -> CostModel {
