@@ -703,3 +703,47 @@ fn slopes_at_the_bounds_of_the_32_bit_path() {
     }
     assert!(checked > 200_000);
 }
+
+/// `subtract-next-distinct` lowers a window's hint (one above the previous
+/// level) to the level once its front holds N, and admits `p >= old hint`
+/// from then on: the pre-filter's raw floor must be the old hint's. With a
+/// background map of 0s and 1s (a sixteenth of a count apart) and the same
+/// frame again, a level from a pixel of background 1 and a copy of the old
+/// hint at background 0 are common: a floor one value higher (3ca79bd's
+/// `Raise::LOWER` numbering, whose bit 1 asked for the floor above the
+/// hint) dropped that copy, and the flux came out one short.
+#[test]
+fn lowered_hint_keeps_the_old_hints_copies() {
+    let (camera, windows) = canary(12);
+    let pixels = camera.pixel_count();
+    let mut state = 12345u64;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    for _ in 0..40 {
+        let background: Vec<i32> = (0..pixels).map(|_| (next() % 2) as i32).collect();
+        // A spot in each window over a noisy floor, the frame repeated.
+        let frame: Vec<u16> = (0..pixels)
+            .map(|k| {
+                let (x, y) = ((k % 112 % 16) as u64, (k / 112 % 16) as u64);
+                let d = x.abs_diff(8).pow(2) + y.abs_diff(8).pow(2);
+                (100 + 400 / (1 + d) + next() % 6) as u16
+            })
+            .collect();
+        let frames = vec![frame.clone(), frame.clone(), frame];
+        for n in [5u16, 10, 20] {
+            let config = Config {
+                calibration: Calibration {
+                    background: Some(&background),
+                    gain: None,
+                    threshold: None,
+                },
+                ..config(camera, &windows, SelectionRule::SubtractNextDistinct, n)
+            };
+            assert_engine_matches_reference(config, &frames, 112 * 3);
+        }
+    }
+}

@@ -41,10 +41,10 @@ const ENTRY: usize = core::mem::size_of::<Entry>();
 /// - 0 ([`Raise::NONE`]): stop, for the engine (`Engine::attend`);
 /// - 1 and 2 ([`Raise::AT_HINT`], [`Raise::ABOVE_HINT`]): raise admission
 ///   to the hint, `admit = hint + (raise - 1)`, `strict = raise - 1`;
-/// - 3 ([`Raise::LOWER`]): lower the hint to `hint - 1` where the back
-///   tier holds a copy of it, then raise as `ABOVE_HINT`; else stop (the
-///   kernel's dispatch tells it from the counting raises last, so that
-///   the others pay nothing for it);
+/// - 4 ([`Raise::LOWER`]): lower the hint to `hint - 1` where the back
+///   tier holds a copy of it, then raise as `ABOVE_HINT` (of the lowered
+///   hint); else stop (the kernel's dispatch tells it from the counting
+///   raises last, so that the others pay nothing for it);
 /// - `2 + 4 c` ([`Raise::counting`]`(c)`, `c` in 1..=16): first count the
 ///   front's copies of the hint that arrived since the last count
 ///   (`at_hint`, `counted`), then, if N front values are above the hint
@@ -56,7 +56,11 @@ const ENTRY: usize = core::mem::size_of::<Entry>();
 /// raised admission `p > hint - 1` is `p >= hint`), above it otherwise: bit
 /// 1 of the byte says which (set: above), one test where the opening of
 /// every window works it out (a comparison with `AT_HINT` cost CANARY
-/// 0.04 instructions a pixel more, 8x8 windows 0.1).
+/// 0.04 instructions a pixel more, 8x8 windows 0.1). So `LOWER` is 4, not
+/// 3: as 3 its bit 1 set (3ca79bd to c01d428) gave it the floor of
+/// `hint + 1`, and the lanes then dropped a pixel equal to the old hint
+/// whose background was the window's least (`engine_limits`'
+/// `lowered_hint_keeps_the_old_hints_copies`).
 #[repr(transparent)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Raise(u8);
@@ -75,7 +79,7 @@ impl Raise {
     /// what `stream::admission::raise_below_front` does when the back holds
     /// such a copy. Without one, a stop (the engine then takes the back's
     /// largest value).
-    pub const LOWER: Raise = Raise(3);
+    pub const LOWER: Raise = Raise(4);
 
     /// Count the hint's copies first and raise once N front values are
     /// above it and it has `copies` (1 to 16) copies
@@ -86,7 +90,8 @@ impl Raise {
 
     /// The copies a counting raise needs; `None` for the others.
     pub const fn copies(self) -> Option<u8> {
-        if self.0 > 3 {
+        // 2 + 4 c: above `LOWER`.
+        if self.0 > 4 {
             Some(self.0 / 4)
         } else {
             None

@@ -241,13 +241,13 @@ macro_rules! kernel {
                 // if the engine prepared it (see `raise_admission`), else a
                 // stop.
                 // `raise - 1` is the raised admission's strictness
-                // (`Raise`): `admit = hint + strict`; 3: the hint lowered
+                // (`Raise`): `admit = hint + strict`; 4: the hint lowered
                 // first (76:, told apart at 70: by this comparison's
                 // flags); above, a counting raise of `raise / 4`
                 // copies (70:).
                 "ldrb r0, [lr, #{raise}]",
                 "cbz r0, 18f",
-                "cmp r0, #3",
+                "cmp r0, #4",
                 "bhs 70f",
                 "subs r0, #1",
                 "71:",
