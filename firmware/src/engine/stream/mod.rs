@@ -530,8 +530,38 @@ impl<'c, 'm> Engine<'c, 'm> {
                 self.history_row = 0;
             }
         }
+        #[cfg(debug_assertions)]
+        self.check_admission_floors();
         if self.finished_in_row || self.row == self.event_row {
             self.row_events(sink);
+        }
+    }
+
+    /// Debug builds, at every row's end: each open window's pre-filter
+    /// passes every pixel its admission (`admit`) takes. Its raw floor is at
+    /// most `admit`'s (`calibrate::raw_floor`; lower only costs pixels the
+    /// exact test then rejects) and `lanes` agrees with it, however the
+    /// admission was last set (opening, a raise prepared by the engine and
+    /// made by the row kernel, a stop, a compaction, the last row's
+    /// preparation). A floor one value too high drops pixels only where
+    /// their background is the window's least, which differential tests
+    /// meet rarely; this meets it wherever the two floors differ.
+    #[cfg(debug_assertions)]
+    fn check_admission_floors(&self) {
+        for w in &self.memory.open[..self.open_len] {
+            if w.capacity == 0 || w.rescan || w.finished || w.floor == 0 {
+                continue;
+            }
+            let exact = super::calibrate::raw_floor(&self.config.calibration, w.bounds, w.admit)
+                .min(self.max_raw as u32 + 1);
+            debug_assert!(
+                w.floor <= exact,
+                "window {}: raw floor {} above admission {}'s, {exact}",
+                w.index,
+                w.floor,
+                w.admit
+            );
+            debug_assert_eq!(w.lanes, (w.floor - 1).wrapping_mul(0x0001_0001));
         }
     }
 
