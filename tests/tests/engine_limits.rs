@@ -10,15 +10,21 @@ use brightpix_protocol::{
     Selection, SelectionRule, SubapertureWindow,
 };
 
-fn frame(camera: Camera, seed: u64) -> Vec<u16> {
+/// A xorshift generator: reproducible values without a dependency.
+fn xorshift(seed: u64) -> impl FnMut() -> u64 {
     let mut state = seed | 1;
+    move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    }
+}
+
+fn frame(camera: Camera, seed: u64) -> Vec<u16> {
+    let mut next = xorshift(seed);
     (0..camera.pixel_count())
-        .map(|_| {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state % (camera.max_raw() as u64 + 1)) as u16
-        })
+        .map(|_| (next() % (camera.max_raw() as u64 + 1)) as u16)
         .collect()
 }
 
@@ -673,13 +679,7 @@ fn slopes_at_the_bounds_of_the_32_bit_path() {
     // scale (log-uniform), so that remainders near the divisor occur at
     // each flux bound.
     let centroider = Centroider::new(Centroid::default());
-    let mut state = 0x9e37_79b9_7f4a_7c15u64;
-    let mut next = move || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        state
-    };
+    let mut next = xorshift(0x9e37_79b9_7f4a_7c15);
     for _ in 0..200_000 {
         let flux = ((next() >> 26) >> (next() % 38)).max(1) as i64;
         let width = (next() % 64 + 1) as u16;
@@ -716,13 +716,7 @@ fn slopes_at_the_bounds_of_the_32_bit_path() {
 fn lowered_hint_keeps_the_old_hints_copies() {
     let (camera, windows) = canary(12);
     let pixels = camera.pixel_count();
-    let mut state = 12345u64;
-    let mut next = move || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        state
-    };
+    let mut next = xorshift(12345);
     for _ in 0..40 {
         let background: Vec<i32> = (0..pixels).map(|_| (next() % 2) as i32).collect();
         // A spot in each window over a noisy floor, the frame repeated.
