@@ -531,14 +531,15 @@ impl<'c, 'm> Engine<'c, 'm> {
             }
         }
         #[cfg(debug_assertions)]
-        self.check_admission_floors();
+        self.check_open_windows();
         if self.finished_in_row || self.row == self.event_row {
             self.row_events(sink);
         }
     }
 
     /// Debug builds, at every row's end: each open window's pre-filter
-    /// passes every pixel its admission (`admit`) takes. Its raw floor is at
+    /// passes every pixel its admission (`admit`) takes, and its tiers are
+    /// in order. Its raw floor is at
     /// most `admit`'s (`calibrate::raw_floor`; lower only costs pixels the
     /// exact test then rejects) and `lanes` agrees with it, however the
     /// admission was last set (opening, a raise prepared by the engine and
@@ -547,7 +548,7 @@ impl<'c, 'm> Engine<'c, 'm> {
     /// their background is the window's least, which differential tests
     /// meet rarely; this meets it wherever the two floors differ.
     #[cfg(debug_assertions)]
-    fn check_admission_floors(&self) {
+    fn check_open_windows(&self) {
         for w in &self.memory.open[..self.open_len] {
             if w.capacity == 0 || w.rescan || w.finished || w.floor == 0 {
                 continue;
@@ -562,6 +563,19 @@ impl<'c, 'm> Engine<'c, 'm> {
                 w.admit
             );
             debug_assert_eq!(w.lanes, (w.floor - 1).wrapping_mul(0x0001_0001));
+            // The tiers within the buffer and apart; the front's counted
+            // copies of the hint within it.
+            debug_assert!(
+                w.buffer <= w.front_end
+                    && w.front_end <= w.back_start
+                    && w.back_start
+                        <= w.buffer
+                            + w.capacity as usize * core::mem::size_of::<super::select::Entry>()
+                    && w.at_hint <= w.counted
+                    && w.counted as usize <= w.front(),
+                "window {}: tiers out of order",
+                w.index
+            );
         }
     }
 
