@@ -208,11 +208,13 @@ fn slope(sum: i64, flux: i64, reference: i32) -> i32 {
     (quotient - reference as i64).clamp(i32::MIN as i64, i32::MAX as i64) as i32
 }
 
-/// `floor((sum * 2^16 + flux) / (2 flux))` for `flux >= 1` (SPEC.md §5):
-/// with three 32-bit divisions when the operands allow (almost always), a
-/// 64-bit division otherwise. [`rounded_quotient_portable`] is its twin.
+/// `floor((sum * 2^16 + flux) / (2 flux))` for `flux >= 1` (SPEC.md §5),
+/// for [`slopes_wide`]: with three 32-bit divisions when the operands allow,
+/// else [`rounded_quotient_portable`]'s one 64-bit division. Both, and the
+/// 32-bit path, are held to §5's arithmetic by `engine_limits`'
+/// `slopes_at_the_bounds_of_the_32_bit_path`.
 #[inline]
-pub fn rounded_quotient(sum: i64, flux: i64) -> i64 {
+fn rounded_quotient(sum: i64, flux: i64) -> i64 {
     match rounded_quotient_narrow(sum, flux) {
         Some(q) => q,
         None => rounded_quotient_portable(sum, flux),
@@ -222,7 +224,7 @@ pub fn rounded_quotient(sum: i64, flux: i64) -> i64 {
 /// The definition of [`rounded_quotient`]: one 64-bit division (a library
 /// call of about a hundred instructions on Cortex-M).
 #[inline]
-pub fn rounded_quotient_portable(sum: i64, flux: i64) -> i64 {
+fn rounded_quotient_portable(sum: i64, flux: i64) -> i64 {
     ((sum << 16) + flux).div_euclid(2 * flux)
 }
 
