@@ -5,7 +5,7 @@
 
 mod camera_sim;
 
-use brightpix_firmware::camera::packing::{pack, unpack};
+use brightpix_firmware::camera::packing::{as_pixels, pack, unpack};
 use brightpix_firmware::camera::{
     CameraStats, DataWidth, DcmiSource, DmaProgress, DmaRing, FrameMarks, Mark, MARK_SLOTS,
 };
@@ -54,7 +54,14 @@ fn pixels_are_packed_first_in_the_low_bits() {
         let mut out = [0u16; 4];
         assert_eq!(unpack(width, &[0x0ABC_0123, 0xFFFF_0001], &mut out), 4);
         assert_eq!(out, [0x0123, 0x0ABC, 0x0001, 0xFFFF]);
+        // Read in place, the same pixels.
+        assert_eq!(
+            as_pixels(width, &[0x0ABC_0123, 0xFFFF_0001]),
+            Some(&[0x0123, 0x0ABC, 0x0001, 0xFFFF][..])
+        );
     }
+    // Four to a word: unpacked, never read in place.
+    assert_eq!(as_pixels(DataWidth::Bits8, &[0x4433_2211]), None);
     let mut rng = Rng::new(1);
     for width in WIDTHS {
         let pixels: Vec<u16> = (0..64)
@@ -65,6 +72,9 @@ fn pixels_are_packed_first_in_the_low_bits() {
         let mut back = vec![0; 64];
         assert_eq!(unpack(width, &words, &mut back), 64);
         assert_eq!(back, pixels);
+        if let Some(in_place) = as_pixels(width, &words) {
+            assert_eq!(in_place, &pixels[..]);
+        }
     }
     assert_eq!(DataWidth::Bits8.edm(), Some(0));
     assert_eq!(DataWidth::Bits14.edm(), Some(3));

@@ -122,6 +122,10 @@ pub struct BenchBuffers<const W: usize, const F: usize> {
     engine_results: [SubapertureResult; W],
     floor_results: [SubapertureResult; W],
     samples: [FrameCounts; F],
+    /// The camera source's run buffers (`Workload::camera`), as the
+    /// STM32H743's camera path has them: 256 words, 512 pixels.
+    camera_words: [u32; 256],
+    camera_pixels: [u16; 512],
 }
 
 impl<const W: usize, const F: usize> BenchBuffers<W, F> {
@@ -132,6 +136,8 @@ impl<const W: usize, const F: usize> BenchBuffers<W, F> {
             engine_results: [NO_RESULT; W],
             floor_results: [NO_RESULT; W],
             samples: [NO_COUNTS; F],
+            camera_words: [0; 256],
+            camera_pixels: [0; 512],
         }
     }
 }
@@ -225,6 +231,8 @@ impl<C: BoardCounter, const W: usize, const F: usize> BenchRunner for BoardBench
             bounds: &mut b.bounds,
             engine_results: &mut b.engine_results,
             floor_results: &mut b.floor_results,
+            camera_words: &mut b.camera_words,
+            camera_pixels: &mut b.camera_pixels,
         };
         let recorder = Recorder::new(&self.counter, &mut b.samples[..w.frames]);
         let measured = measure::<_, BOARD_ACROSS>(&w, &recorder, &mut buffers, engine);

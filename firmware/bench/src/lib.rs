@@ -17,6 +17,8 @@
 //!   engine's subtract-next slopes bit for bit (checked);
 //! - [`sort`]: the paper's sort per sub-aperture, and the floor's known
 //!   levels;
+//! - [`camera_feed`]: the board's camera path (its `DcmiSource` over a
+//!   DMA ring in RAM), for the workload that pushes through it;
 //! - [`device`]: one workload measured for the device loop's bench request,
 //!   in memory the device lends (its engine memory and staging slot).
 //!
@@ -28,13 +30,14 @@
 //! Moving it behind a crate boundary changes what LLVM inlines around the
 //! timed calls, which moved the CANARY engine figure by 0.01-0.03 instr/px
 //! and the sort's by 0.4: the QEMU tables stay as they were only this way.
-//! So `counter.rs`, `floor.rs`, `floor_row.rs`, `frames.rs`, `sort.rs` and
+//! So `camera_feed.rs`, `counter.rs`, `floor.rs`, `floor_row.rs`, `frames.rs`, `sort.rs` and
 //! `workloads.rs` refer to each other as `crate::...` and to nothing else
 //! of this crate.
 #![no_std]
 
 pub use counter::Counter;
 
+pub mod camera_feed;
 mod counter;
 pub mod device;
 pub mod floor;

@@ -10,6 +10,7 @@ use brightpix_protocol::{
     SubapertureWindow,
 };
 
+use crate::camera_feed::CameraFeed;
 use crate::floor::{read_every_pixel, Floor, FloorMode};
 use crate::frames::{background_pattern, Generator, Grid, Pattern, DEFAULT_FLUX};
 use crate::sort;
@@ -44,6 +45,10 @@ pub struct Workload {
     /// Pixels pushed at a time (a camera source's runs, e.g.
     /// [`source_run`]); `None`: one camera row per push.
     pub chunk: Option<usize>,
+    /// The frames reach the engine through the board's camera source, as
+    /// the DMA writes them ([`CameraFeed`]: its runs and its copy out of
+    /// the ring counted with the engine); `chunk` is then the source's.
+    pub camera: bool,
 }
 
 /// The CANARY defaults: 7x7 windows of 16x16, subtract-next N = 20, a
@@ -67,6 +72,7 @@ pub const CANARY: Workload = Workload {
     frames: 8,
     sort: true,
     chunk: None,
+    camera: false,
 };
 
 /// The pixels of each run the board's camera source
@@ -118,6 +124,17 @@ pub const ALL: &[Workload] = &[
         name: "canary-12bit-runs-512",
         bit_depth: 12,
         chunk: Some(source_run(512, CANARY.grid.across * CANARY.grid.side)),
+        sort: false,
+        ..CANARY
+    },
+    // As the STM32H743 runs it: the same frames written to a DMA ring as
+    // its DCMI packs them, taken out by its camera source (`DcmiSource`:
+    // runs of at most 256 words cut at row ends, copied out of the ring
+    // and turned into pixels) and pushed run by run, all of it counted.
+    Workload {
+        name: "canary-12bit-dcmi",
+        bit_depth: 12,
+        camera: true,
         sort: false,
         ..CANARY
     },
@@ -287,6 +304,10 @@ pub struct Buffers<'b> {
     pub bounds: &'b mut [WindowBounds],
     pub engine_results: &'b mut [SubapertureResult],
     pub floor_results: &'b mut [SubapertureResult],
+    /// The camera source's run buffers (a workload with `camera`): at
+    /// least 256 words and 512 pixels, as the STM32H743's.
+    pub camera_words: &'b mut [u32],
+    pub camera_pixels: &'b mut [u16],
 }
 
 /// [`Mismatch::what`] when the engine's memory refused the workload.
@@ -399,6 +420,18 @@ pub fn measure<#[cfg(not(brightpix_qemu_bench))] C: Counter, const A: usize>(
             let _ = engine.push(row, &mut |_r: SubapertureResult| {});
         }
     }
+    let mut feed = if w.camera {
+        let feed = CameraFeed::new(config.camera, frame, b.camera_words, b.camera_pixels);
+        if feed.is_none() {
+            return Err(Mismatch {
+                what: "the camera source cannot carry the workload's frames",
+                index: 0,
+            });
+        }
+        feed
+    } else {
+        None
+    };
     let before = engine.stats();
     let mut m = Measured {
         pixels: pixels * w.frames,
@@ -416,32 +449,52 @@ pub fn measure<#[cfg(not(brightpix_qemu_bench))] C: Counter, const A: usize>(
         // error (a few instructions, which the compiler moves with
         // unrelated code) a hundred times a frame.
         let results = &mut *b.engine_results;
-        let step = w.chunk.unwrap_or(width);
-        let first_of_last_row = (pixels - width) / step;
-        let (before_last_row, last_row) = frame.split_at(first_of_last_row * step);
-        let mut pushes = |part: &[u16], first: usize| {
-            meter.count(|| {
-                for (c, run) in part.chunks(step).enumerate() {
-                    let pushed = engine.push(run, &mut |r: SubapertureResult| {
-                        results[r.index as usize] = r
-                    });
-                    if pushed.is_err() {
-                        return Err(Mismatch {
-                            what: "the engine refused a generated pixel",
-                            index: first + c,
+        if let Some(feed) = feed.as_mut() {
+            // The board's camera path: the DMA writes all rows but the
+            // last, the source's runs go to the engine; then the last row
+            // and the frame's end mark.
+            let mut sink = |r: SubapertureResult| results[r.index as usize] = r;
+            let refused = || Mismatch {
+                what: "the engine refused a pixel of the camera source",
+                index: 0,
+            };
+            feed.arrive_before_last_row(frame);
+            let (count, pushed) = meter.count(|| feed.drain(|run| engine.push(run, &mut sink)));
+            pushed.map_err(|_| refused())?;
+            m.engine += count;
+            feed.arrive_last_row();
+            let (count, pushed) = meter.count(|| feed.drain(|run| engine.push(run, &mut sink)));
+            pushed.map_err(|_| refused())?;
+            m.engine += count;
+            m.engine_last_row += count / w.frames as f64;
+        } else {
+            let step = w.chunk.unwrap_or(width);
+            let first_of_last_row = (pixels - width) / step;
+            let (before_last_row, last_row) = frame.split_at(first_of_last_row * step);
+            let mut pushes = |part: &[u16], first: usize| {
+                meter.count(|| {
+                    for (c, run) in part.chunks(step).enumerate() {
+                        let pushed = engine.push(run, &mut |r: SubapertureResult| {
+                            results[r.index as usize] = r
                         });
+                        if pushed.is_err() {
+                            return Err(Mismatch {
+                                what: "the engine refused a generated pixel",
+                                index: first + c,
+                            });
+                        }
                     }
-                }
-                Ok(())
-            })
-        };
-        let (count, pushed) = pushes(before_last_row, 0);
-        pushed?;
-        m.engine += count;
-        let (count, pushed) = pushes(last_row, first_of_last_row);
-        pushed?;
-        m.engine += count;
-        m.engine_last_row += count / w.frames as f64;
+                    Ok(())
+                })
+            };
+            let (count, pushed) = pushes(before_last_row, 0);
+            pushed?;
+            m.engine += count;
+            let (count, pushed) = pushes(last_row, first_of_last_row);
+            pushed?;
+            m.engine += count;
+            m.engine_last_row += count / w.frames as f64;
+        }
         // The floor, and its slopes against the engine's.
         let mode = if selects {
             FloorMode::Skip

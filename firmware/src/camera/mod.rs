@@ -94,8 +94,8 @@ mod source;
 pub use crop::{dcmi_check, DcmiCropRegisters, SensorCrop};
 pub use packing::DataWidth;
 pub use ring::{
-    DmaProgress, DmaRing, FrameMarks, Mark, CACHE_LINE_BYTES, CACHE_LINE_WORDS, MARK_SLOTS,
-    MAX_HOLD_BACK_WORDS, RING_GRANULE_WORDS,
+    copy_from_ring, DmaProgress, DmaRing, FrameMarks, Mark, CACHE_LINE_BYTES, CACHE_LINE_WORDS,
+    MARK_SLOTS, MAX_HOLD_BACK_WORDS, RING_GRANULE_WORDS,
 };
 pub use soft::{SimulatedCamera, SoftCapture, SoftDma, SoftRing};
 pub use source::{cut_at_row_end, CameraStats, DcmiSource};

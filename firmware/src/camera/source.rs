@@ -7,7 +7,7 @@ use brightpix_protocol::wire::{CaptureStart, CropFault, PixelSourceKind, SyncFau
 use brightpix_protocol::{Camera, Crop};
 
 use super::crop::frame_check;
-use super::packing::{unpack, DataWidth};
+use super::packing::{as_pixels, unpack, DataWidth};
 use super::ring::{
     distance, DmaProgress, DmaRing, Mark, CACHE_LINE_WORDS, MARK_SLOTS, MAX_HOLD_BACK_WORDS,
     RING_GRANULE_WORDS,
@@ -38,7 +38,7 @@ pub struct CameraStats {
 const MAX_STEPS: usize = 4 * MARK_SLOTS + 16;
 
 enum Step {
-    /// A run: frame, first pixel, pixels at the start of the pixel buffer.
+    /// A run: frame, first pixel, words at the start of the word buffer.
     Run(u32, u32, usize),
     /// Nothing to deliver until the next DMA or camera event.
     Wait,
@@ -274,7 +274,6 @@ impl<'b, R: DmaRing> DcmiSource<'b, R> {
                 self.overrun(run, after);
                 continue;
             }
-            let pixels = unpack(self.width, &self.words[..n], self.pixels);
             let first_pixel = run.read.wrapping_sub(run.start).wrapping_mul(per_word);
             let frame = run.frame;
             run.read = run.read.wrapping_add(n as u32);
@@ -288,7 +287,7 @@ impl<'b, R: DmaRing> DcmiSource<'b, R> {
                 run.start = end;
             }
             self.run = Some(run);
-            return Step::Run(frame, first_pixel, pixels);
+            return Step::Run(frame, first_pixel, n);
         }
         Step::Yield
     }
@@ -480,7 +479,7 @@ impl<R: DmaRing> PixelSource for DcmiSource<'_, R> {
     /// Besides pixels: one empty run when a capture that waited to be
     /// armed is (the device loop then acknowledges it).
     async fn next(&mut self) -> PixelRun<'_> {
-        let (frame, first_pixel, n) = poll_fn(|cx| {
+        let (frame, first_pixel, words) = poll_fn(|cx| {
             if self.run.is_none() {
                 // Stopped: only `start` (from the device loop, which then
                 // polls a new future) changes that.
@@ -506,11 +505,19 @@ impl<R: DmaRing> PixelSource for DcmiSource<'_, R> {
         })
         .await;
         // The ring said how the capture began before its first word.
-        let began = (n > 0 && core::mem::take(&mut self.first_run)).then(|| self.ring.began());
+        let began = (words > 0 && core::mem::take(&mut self.first_run)).then(|| self.ring.began());
+        let words = &self.words[..words];
+        let pixels = match as_pixels(self.width, words) {
+            Some(pixels) => pixels,
+            None => {
+                let n = unpack(self.width, words, self.pixels);
+                &self.pixels[..n]
+            }
+        };
         PixelRun {
             frame,
             first_pixel,
-            pixels: &self.pixels[..n],
+            pixels,
             began,
         }
     }

@@ -123,10 +123,47 @@ mod sse2 {
 pub fn copy_words(from: &[u32], to: &mut [u32]) {
     assert_eq!(from.len(), to.len());
     #[cfg(target_arch = "arm")]
-    // SAFETY: reads and writes exactly `from.len()` words within the two
-    // slices (equal lengths, asserted): `n / 16` rounds of sixteen, eight
-    // if bit 3 of `n` is set, four if bit 2 is, then `n % 4` single words;
-    // r2-r5, r8, r10-r12 are clobbered.
+    // SAFETY: both slices hold `to.len()` words (asserted).
+    unsafe {
+        copy_words_asm(from.as_ptr(), to.as_mut_ptr(), to.len())
+    };
+    #[cfg(not(target_arch = "arm"))]
+    copy_words_portable(from, to);
+}
+
+/// [`copy_words`] out of memory that the program does not own as a slice:
+/// a DMA buffer, which a DMA may write at any time (the camera source's
+/// ring, `camera::copy_from_ring`). The assembly reads each word once,
+/// when it runs, and the compiler cannot move memory accesses across it;
+/// elsewhere, volatile reads.
+///
+/// # Safety
+/// `from` is aligned and valid for reads of `to.len()` words.
+#[inline(always)]
+pub unsafe fn copy_words_from(from: *const u32, to: &mut [u32]) {
+    #[cfg(target_arch = "arm")]
+    // SAFETY: the caller's contract for `from`; `to` is a slice.
+    unsafe {
+        copy_words_asm(from, to.as_mut_ptr(), to.len())
+    };
+    #[cfg(not(target_arch = "arm"))]
+    for (k, w) in to.iter_mut().enumerate() {
+        // SAFETY: the caller's contract.
+        *w = unsafe { from.add(k).read_volatile() };
+    }
+}
+
+/// The assembly of [`copy_words`]: `n / 16` rounds of sixteen words, eight
+/// if bit 3 of `n` is set, four if bit 2 is, then `n % 4` single words;
+/// r2-r5, r8, r10-r12 are clobbered.
+///
+/// # Safety
+/// `from` and `to` are aligned, valid for `n` words each (reads, writes).
+#[cfg(target_arch = "arm")]
+#[inline(always)]
+unsafe fn copy_words_asm(from: *const u32, to: *mut u32, n: usize) {
+    // SAFETY: the caller's contract: exactly `n` words read from `from`
+    // and written to `to`.
     unsafe {
         core::arch::asm!(
             "lsrs {o}, {n}, #4",
@@ -157,17 +194,15 @@ pub fn copy_words(from: &[u32], to: &mut [u32]) {
             "subs {n}, {n}, #1",
             "bne 5b",
             "6:",
-            f = inout(reg) from.as_ptr() => _,
-            t = inout(reg) to.as_mut_ptr() => _,
-            n = inout(reg) from.len() => _,
+            f = inout(reg) from => _,
+            t = inout(reg) to => _,
+            n = inout(reg) n => _,
             o = out(reg) _,
             out("r2") _, out("r3") _, out("r4") _, out("r5") _,
             out("r8") _, out("r10") _, out("r11") _, out("r12") _,
             options(nostack),
         );
     }
-    #[cfg(not(target_arch = "arm"))]
-    copy_words_portable(from, to);
 }
 
 /// The portable definition of [`copy_words`].

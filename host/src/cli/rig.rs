@@ -78,8 +78,8 @@ struct PlanArgs {
     camera_rate: Option<f64>,
     /// Instructions per pixel measured for this configuration on whole rows (`brightpix bench
     /// --config`) instead of the model fitted to the bench's tables; the board's camera interface
-    /// is added (stm32h743: what its 12-bit DCMI runs add, from the bench's
-    /// `canary-12bit-runs-512` row).
+    /// is added (stm32h743: what its camera path adds, from the bench's
+    /// `canary-12bit-dcmi` row).
     #[arg(long, value_name = "X")]
     instr_per_px: Option<f64>,
     /// Write the rig here (rig.toml); without it the file is printed.

@@ -42,16 +42,17 @@ pub const DCMI_MAX_PIXEL_CLOCK_HZ: f64 = 80.0e6;
 /// `rig plan --instr-per-px` takes that figure instead.
 ///
 /// A board whose camera interface hands the engine something other than
-/// whole 16-bit rows pays for it: the STM32H743's DCMI delivers 12-bit
-/// pixels packed in DMA runs (at most 512 pixels, cut at row ends),
-/// which the board unpacks as they arrive ([`CostModel::STM32H743`]).
+/// whole 16-bit rows pays for it: the STM32H743's DCMI writes 12-bit
+/// pixels into a DMA ring, which its camera source copies out in runs (at
+/// most 512 pixels, cut at row ends) and the engine takes run by run,
+/// checking each pixel against the bit depth ([`CostModel::STM32H743`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CostModel {
     pub per_pixel: f64,
     pub per_window: f64,
     pub last_row_per_window: f64,
     /// Per captured pixel, the board's camera interface beyond whole
-    /// 16-bit rows (unpacking its DMA runs); 0 for pixels in rows.
+    /// 16-bit rows (its camera source and runs); 0 for pixels in rows.
     pub camera_per_pixel: f64,
     /// After the frame's last pixel, whatever the windows: the camera
     /// interface's last piece (a board's last DMA run).
@@ -59,16 +60,17 @@ pub struct CostModel {
 }
 
 impl CostModel {
-    /// Cortex-M4: CANARY 12.41 instr/px, 8x8 windows 30.18, last row 2,831.
-    pub const CORTEX_M4: CostModel = CostModel::fit(12.41, 30.18, 2831.0);
-    /// Cortex-M7: CANARY 12.35 instr/px, 8x8 windows 30.09, last row 2,794.
-    pub const CORTEX_M7: CostModel = CostModel::fit(12.35, 30.09, 2794.0);
-    /// The STM32H743 (Cortex-M7) with its DCMI's 12-bit runs: the bench's
-    /// `canary-12bit-runs-512` row (12.72 instr/px, last row 4,916) against
-    /// its whole-row CANARY (12.35, 2,794) adds 0.37 instructions a pixel
-    /// and 2,122 after the last pixel to the Cortex-M7's model.
+    /// Cortex-M4: CANARY 12.42 instr/px, 8x8 windows 30.19, last row 2,833.
+    pub const CORTEX_M4: CostModel = CostModel::fit(12.42, 30.19, 2833.0);
+    /// Cortex-M7: CANARY 12.36 instr/px, 8x8 windows 30.09, last row 2,790.
+    pub const CORTEX_M7: CostModel = CostModel::fit(12.36, 30.09, 2790.0);
+    /// The STM32H743 (Cortex-M7) through its camera path: the bench's
+    /// `canary-12bit-dcmi` row (13.62 instr/px, last row 4,103: the
+    /// board's `DcmiSource` over a DMA ring, its runs, the 12-bit check)
+    /// against its whole-row CANARY (12.36, 2,790) adds 1.26 instructions
+    /// a pixel and 1,313 after the last pixel to the Cortex-M7's model.
     pub const STM32H743: CostModel =
-        CostModel::CORTEX_M7.with_camera_runs(12.35, 2794.0, 12.72, 4916.0);
+        CostModel::CORTEX_M7.with_camera_runs(12.36, 2790.0, 13.62, 4103.0);
 
     /// The model through the bench's two rows (see the type's documentation).
     pub const fn fit(canary: f64, windows_8x8: f64, canary_last_row: f64) -> CostModel {
@@ -546,7 +548,7 @@ mod tests {
             assert!((model.frame_instructions(12544, 49) / 12544.0 - canary).abs() < 1e-9);
             assert!((model.frame_instructions(12544, 196) / 12544.0 - small).abs() < 1e-9);
             if file == "cortex-m7.txt" {
-                let (runs, runs_last_row) = row("canary-12bit-runs-512");
+                let (runs, runs_last_row) = row("canary-12bit-dcmi");
                 let h = CostModel::STM32H743;
                 assert_eq!(
                     h,

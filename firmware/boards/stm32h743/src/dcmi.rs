@@ -72,7 +72,8 @@ use core::sync::atomic::{AtomicU32, Ordering};
 use core::task::Waker;
 
 use brightpix_firmware::camera::{
-    dcmi_check, DataWidth, DcmiCropRegisters, DmaProgress, DmaRing, FrameMarks, CACHE_LINE_BYTES,
+    copy_from_ring, dcmi_check, DataWidth, DcmiCropRegisters, DmaProgress, DmaRing, FrameMarks,
+    CACHE_LINE_BYTES,
 };
 use brightpix_firmware::device::CaptureBegin;
 use brightpix_protocol::wire::{CaptureStart, CropFault, SyncFault};
@@ -491,11 +492,8 @@ impl DmaRing for DcmiRing {
 
     fn copy(&mut self, start: usize, out: &mut [u32]) {
         assert!(start + out.len() <= self.len);
-        for (k, w) in out.iter_mut().enumerate() {
-            // SAFETY: inside the ring (checked above); volatile, since the
-            // DMA writes this memory outside the program's knowledge.
-            *w = unsafe { self.ring.add(start + k).read_volatile() };
-        }
+        // SAFETY: inside the ring (checked above), which is word-aligned.
+        unsafe { copy_from_ring(self.ring.add(start), out) }
     }
 
     fn register_waker(&mut self, waker: &Waker) {

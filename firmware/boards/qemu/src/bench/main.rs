@@ -37,6 +37,8 @@
 // with the timed loops, as they always were, so the code around the timed
 // calls, and with it every figure of the QEMU tables, is what it was (see
 // firmware/bench/src/lib.rs).
+#[path = "../../../../bench/src/camera_feed.rs"]
+mod camera_feed;
 #[path = "../../../../bench/src/counter.rs"]
 mod counter;
 #[path = "../../../../bench/src/floor.rs"]
@@ -113,6 +115,11 @@ static ENGINE_RESULTS: ConstStaticCell<[SubapertureResult; MAX_WINDOWS]> =
     ConstStaticCell::new([NO_RESULT; MAX_WINDOWS]);
 static FLOOR_RESULTS: ConstStaticCell<[SubapertureResult; MAX_WINDOWS]> =
     ConstStaticCell::new([NO_RESULT; MAX_WINDOWS]);
+
+/// The camera source's run buffers, as the STM32H743's: 256 words, 512
+/// pixels.
+static CAMERA_WORDS: ConstStaticCell<[u32; 256]> = ConstStaticCell::new([0; 256]);
+static CAMERA_PIXELS: ConstStaticCell<[u16; 512]> = ConstStaticCell::new([0; 512]);
 
 static MEMORY: ConstStaticCell<Memory> = ConstStaticCell::new(Memory::new());
 
@@ -292,6 +299,8 @@ fn main() -> ! {
         bounds: BOUNDS.take(),
         engine_results: ENGINE_RESULTS.take(),
         floor_results: FLOOR_RESULTS.take(),
+        camera_words: CAMERA_WORDS.take(),
+        camera_pixels: CAMERA_PIXELS.take(),
     };
     let memory = MEMORY.take();
 
