@@ -56,7 +56,10 @@ pub fn check_row_kernel(seed: u64, rounds: usize) -> Result<(), KernelMismatch> 
     let mut buffers = [[Entry::ZERO; 7 * SHARE]; 2];
     for round in 0..rounds {
         let top = 1 + next(5) * 13_000 + next(300);
-        let max_raw: u16 = [255, 4_095, u16::MAX][round % 3];
+        // The depths with kernels of their own (8, 10, 12, 14 bits), one
+        // without (9), and 16 bits (no check); each with and without a
+        // background map (`round % 4` below).
+        let max_raw: u16 = [255, 1_023, 4_095, 16_383, 511, u16::MAX][(round / 4) % 6];
         let check = max_raw != u16::MAX;
         for r in pixels.0.iter_mut() {
             *r = next(top).min(max_raw as u32) as u16;

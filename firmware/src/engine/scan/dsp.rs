@@ -18,13 +18,20 @@ use super::RowScan;
 use crate::engine::window::OpenWindow;
 use core::mem::offset_of;
 
-/// The range check of the pixel in r3 when `$check`: out to `$out`.
+/// The range check of the raw pixel in r3: none (`false`), against
+/// `max_raw` on the stack (`true`), or, for the bit depths that have a
+/// kernel of their own, a test of the bits above the depth against an
+/// immediate mask (`0xF000` for 12 bits: one instruction fewer a pixel
+/// that passes the lanes than the load and comparison); out to `$out`.
 macro_rules! check {
     (true, $out:literal) => {
         concat!("ldr r4, [sp, #8]\n", "cmp r3, r4\n", "bhi ", $out, "\n")
     };
     (false, $out:literal) => {
         ""
+    };
+    ($mask:literal, $out:literal) => {
+        concat!("tst r3, #", stringify!($mask), "\n", "bne ", $out, "\n")
     };
 }
 
@@ -440,3 +447,12 @@ kernel!(row_background, true, false);
 kernel!(row_background_checked, true, true);
 kernel!(row_plain, false, false);
 kernel!(row_plain_checked, false, true);
+// The usual camera depths, checked against their masks (`check!`).
+kernel!(row_background_checked_8, true, 0xFF00);
+kernel!(row_background_checked_10, true, 0xFC00);
+kernel!(row_background_checked_12, true, 0xF000);
+kernel!(row_background_checked_14, true, 0xC000);
+kernel!(row_plain_checked_8, false, 0xFF00);
+kernel!(row_plain_checked_10, false, 0xFC00);
+kernel!(row_plain_checked_12, false, 0xF000);
+kernel!(row_plain_checked_14, false, 0xC000);

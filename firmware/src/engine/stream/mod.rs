@@ -42,7 +42,7 @@ use super::centroid::{Centroider, SubapertureResult};
 use super::memory::{EngineMemory, MemorySize};
 use super::plan::plan;
 use super::prefilter;
-use super::scan::RowScan;
+use super::scan::{CheckedKernels, RowScan};
 use super::window::SubapertureState;
 use brightpix_protocol::{Config, ConfigError, MAX_WINDOW_SIDE};
 
@@ -294,6 +294,7 @@ impl<'c, 'm> Engine<'c, 'm> {
                 bad: 0,
                 gain_row: 0,
                 threshold: config.calibration.threshold.unwrap_or(i32::MIN),
+                checked: CheckedKernels::for_max_raw(config.camera.max_raw()),
             },
             bg_row: 0,
             position_row: 0,
