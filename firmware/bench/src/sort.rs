@@ -46,7 +46,10 @@ pub fn sort_grid_row(
 }
 
 /// The level `v(N+1)` of each window of `frame`, by sorting (the floor's
-/// known levels; untimed).
+/// known levels; untimed). Out of line: its frame (a window's values, ~4
+/// KiB) inlined into the board's bench runner took that past the
+/// STM32H743's stack guard (`scripts/board-memory`).
+#[inline(never)]
 pub fn levels(frame: &[u16], background: Option<&[i32]>, grid: Grid, n: usize, out: &mut [i32]) {
     const MAX: usize = 32 * 32;
     let (side, width) = (grid.side, grid.width());

@@ -60,17 +60,17 @@ pub struct CostModel {
 }
 
 impl CostModel {
-    /// Cortex-M4: CANARY 12.42 instr/px, 8x8 windows 30.19, last row 2,833.
-    pub const CORTEX_M4: CostModel = CostModel::fit(12.42, 30.19, 2833.0);
-    /// Cortex-M7: CANARY 12.36 instr/px, 8x8 windows 30.09, last row 2,791.
-    pub const CORTEX_M7: CostModel = CostModel::fit(12.36, 30.09, 2791.0);
+    /// Cortex-M4: CANARY 12.42 instr/px, 8x8 windows 30.19, last row 2,837.
+    pub const CORTEX_M4: CostModel = CostModel::fit(12.42, 30.19, 2837.0);
+    /// Cortex-M7: CANARY 12.36 instr/px, 8x8 windows 30.09, last row 2,795.
+    pub const CORTEX_M7: CostModel = CostModel::fit(12.36, 30.09, 2795.0);
     /// The STM32H743 (Cortex-M7) through its camera path: the bench's
-    /// `canary-12bit-dcmi` row (13.43 instr/px, last row 4,106: the
+    /// `canary-12bit-dcmi` row (13.42 instr/px, last row 4,096: the
     /// board's `DcmiSource` over a DMA ring, its runs, the 12-bit check)
-    /// against its whole-row CANARY (12.36, 2,791) adds 1.07 instructions
-    /// a pixel and 1,315 after the last pixel to the Cortex-M7's model.
+    /// against its whole-row CANARY (12.36, 2,795) adds 1.06 instructions
+    /// a pixel and 1,301 after the last pixel to the Cortex-M7's model.
     pub const STM32H743: CostModel =
-        CostModel::CORTEX_M7.with_camera_runs(12.36, 2791.0, 13.43, 4106.0);
+        CostModel::CORTEX_M7.with_camera_runs(12.36, 2795.0, 13.42, 4096.0);
 
     /// The model through the bench's two rows (see the type's documentation).
     pub const fn fit(canary: f64, windows_8x8: f64, canary_last_row: f64) -> CostModel {
