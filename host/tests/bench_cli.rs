@@ -283,6 +283,26 @@ fn a_user_configuration_goes_to_the_qemu_bench_as_upload_bytes_and_raw_frames() 
         "{stdout}"
     );
     assert!(stdout.contains("FITS one board (63%"), "{stdout}");
+    // The Cortex-M7 row again as an STM32H743 with its camera path: its
+    // model's per-pixel and after-the-last-pixel costs added.
+    let board = brightpix::rig::CostModel::STM32H743;
+    assert!(board.camera_per_pixel > 0.5 && board.last_row_per_frame > 500.0);
+    let expected = format!(
+        "{:.1} Mpx/s per board; {:.1} us after the last row",
+        480.0 / (24.0 + board.camera_per_pixel),
+        (4800.0 + board.last_row_per_frame) / 480.0
+    );
+    let h743 = stdout
+        .lines()
+        .skip_while(|l| !l.contains("an STM32H743 at 480 MHz with its camera path"))
+        .take(2)
+        .collect::<Vec<_>>();
+    assert!(h743[0].contains(&expected), "{stdout}");
+    let share = 12.544 / (480.0 / (24.0 + board.camera_per_pixel));
+    assert!(
+        h743[1].contains(&format!("FITS one board ({:.0}%", share * 100.0)),
+        "{stdout}"
+    );
     let rows: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let upload = brightpix::bench::qemu::config_upload_bytes(

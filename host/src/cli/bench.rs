@@ -15,6 +15,7 @@ use crate::bench::qemu::{self, QemuCore, QemuRow};
 use crate::bench::workloads::{self, Workload};
 use crate::bench::{run_host, HostOptions, HostRow};
 use crate::config_file::ProcessingConfig;
+use crate::rig::CostModel;
 
 #[derive(Args)]
 #[command(
@@ -380,16 +381,24 @@ fn capacity_report(
             capacity.latency_us,
             row.last_row_instructions
         ));
-        if let (Some(rate), Some((pixels, size))) = (args.camera_rate, camera) {
-            let needed = rate * *pixels as f64;
-            let share = needed / capacity.px_per_s;
+        camera_fit(&mut out, args, camera, &capacity);
+        if core == QemuCore::M7 {
+            // The whole rows above, plus what the STM32H743's camera path
+            // adds (its model's, from the bench's `canary-12bit-dcmi`).
+            let board = CostModel::STM32H743;
+            let capacity = Capacity {
+                px_per_s: args.mhz * 1e6 / (row.instr_per_px + board.camera_per_pixel),
+                latency_us: (row.last_row_instructions + board.last_row_per_frame) / args.mhz,
+            };
             out.push_str(&format!(
-                "    a {size} camera at {rate} Hz needs {:.1} Mpx/s: {} ({:.0}% of the board's cycles at one instruction per cycle; the frame period is {:.0} us)\n",
-                needed * 1e-6,
-                if share <= 1.0 { "FITS one board" } else { "does NOT fit one board" },
-                share * 100.0,
-                1e6 / rate,
+                "  an STM32H743 at {} MHz with its camera path (+{:.2} instructions/pixel, +{:.0} after the last pixel: the DMA ring, its camera source's runs and the bit-depth check, from the bench's canary-12bit-dcmi row): {:.1} Mpx/s per board; {:.1} us after the last row\n",
+                args.mhz,
+                board.camera_per_pixel,
+                board.last_row_per_frame,
+                capacity.px_per_s * 1e-6,
+                capacity.latency_us,
             ));
+            camera_fit(&mut out, args, camera, &capacity);
         }
     }
     if qemu_rows.iter().all(|r| r.workload != workloads::USER) {
@@ -415,6 +424,26 @@ fn capacity_report(
         out.push('\n');
     }
     out
+}
+
+/// Whether the camera of `--camera-rate` fits a board of `capacity`.
+fn camera_fit(
+    out: &mut String,
+    args: &BenchArgs,
+    camera: Option<&(u64, String)>,
+    capacity: &Capacity,
+) {
+    if let (Some(rate), Some((pixels, size))) = (args.camera_rate, camera) {
+        let needed = rate * *pixels as f64;
+        let share = needed / capacity.px_per_s;
+        out.push_str(&format!(
+            "    a {size} camera at {rate} Hz needs {:.1} Mpx/s: {} ({:.0}% of the board's cycles at one instruction per cycle; the frame period is {:.0} us)\n",
+            needed * 1e-6,
+            if share <= 1.0 { "FITS one board" } else { "does NOT fit one board" },
+            share * 100.0,
+            1e6 / rate,
+        ));
+    }
 }
 
 /// A board's capacity from a QEMU row.
