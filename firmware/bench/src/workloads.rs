@@ -130,7 +130,7 @@ pub const ALL: &[Workload] = &[
     // As the STM32H743 runs it: the same frames written to a DMA ring as
     // its DCMI packs them, taken out by its camera source (`DcmiSource`:
     // runs of at most 256 words cut at row ends, copied out of the ring
-    // and turned into pixels) and pushed run by run, all of it counted.
+    // and read as pixels) and pushed run by run, all of it counted.
     Workload {
         name: "canary-12bit-dcmi",
         bit_depth: 12,

@@ -80,9 +80,8 @@ impl DataWidth {
 /// how `u16` pixels lie in little-endian memory, so the words already are
 /// the pixels (unpacking them cost the STM32H743's camera path 2.27
 /// instructions a pixel on Cortex-M4, the bench's `canary-12bit-dcmi`:
-/// 15.93 against 13.66). `None` where
-/// they are not: 8-bit words (four pixels each: [`unpack`]), a big-endian
-/// target.
+/// 15.93 against 13.66). `None` where they are not: 8-bit words (four
+/// pixels each: [`unpack`]), a big-endian target.
 pub fn as_pixels(width: DataWidth, words: &[u32]) -> Option<&[u16]> {
     if width.pixels_per_word() != 2 || cfg!(target_endian = "big") {
         return None;
