@@ -14,7 +14,7 @@
 //! | | background maps, 2 slots x 57 600 x i32 | 460 800 |
 //! | | the engine's row history (16 rows of 240) and rescan scratch (a 16 x 16 window) | 10 240 |
 //! | | upload vetting scratch (2 x 1600 x u16; touched only by an upload) | 6 400 |
-//! | | the bench request's buffers (256 windows, 64 frames, a camera run) | 23 040 |
+//! | | the bench request's buffers (256 windows, 64 frames, a camera run) | 23 552 |
 //! | D2 SRAM1-3 (288 KiB) | gain maps, 2 slots x 57 600 x u16 | 230 400 |
 //! | | windows, pixel counts, reference slopes: 2 slots x 1600 x 18 | 57 600 |
 //!
