@@ -16,7 +16,10 @@ use brightpix_protocol::wire::{
     BenchFigures, BenchLimit, BenchReport, BenchResult, CountUnit, FloorCheck, Spread,
 };
 
-use crate::workloads::{measure, Buffers, FrameCounts, Workload, ALL, ENGINE_REFUSED};
+use crate::workloads::{
+    measure, Buffers, FrameCounts, Workload, ALL, CAMERA_RUN_PIXELS, CAMERA_RUN_WORDS,
+    ENGINE_REFUSED,
+};
 use crate::Counter;
 
 /// The widest grid row a board's floor holds (its stack is small): every
@@ -122,10 +125,9 @@ pub struct BenchBuffers<const W: usize, const F: usize> {
     engine_results: [SubapertureResult; W],
     floor_results: [SubapertureResult; W],
     samples: [FrameCounts; F],
-    /// The camera source's run buffers (`Workload::camera`), as the
-    /// STM32H743's camera path has them: 256 words, 512 pixels.
-    camera_words: [u32; 256],
-    camera_pixels: [u16; 512],
+    /// The camera source's run buffers (`Workload::camera`).
+    camera_words: [u32; CAMERA_RUN_WORDS],
+    camera_pixels: [u16; CAMERA_RUN_PIXELS],
 }
 
 impl<const W: usize, const F: usize> BenchBuffers<W, F> {
@@ -136,8 +138,8 @@ impl<const W: usize, const F: usize> BenchBuffers<W, F> {
             engine_results: [NO_RESULT; W],
             floor_results: [NO_RESULT; W],
             samples: [NO_COUNTS; F],
-            camera_words: [0; 256],
-            camera_pixels: [0; 512],
+            camera_words: [0; CAMERA_RUN_WORDS],
+            camera_pixels: [0; CAMERA_RUN_PIXELS],
         }
     }
 }

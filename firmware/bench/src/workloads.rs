@@ -119,17 +119,20 @@ pub const ALL: &[Workload] = &[
         ..CANARY
     },
     // As the STM32H743's DCMI source delivers them: 12-bit pixels in runs
-    // of at most 256 words (512 pixels), cut at row ends.
+    // of at most 512 words (1,024 pixels), cut at row ends: nine rows.
     Workload {
-        name: "canary-12bit-runs-512",
+        name: "canary-12bit-runs-1024",
         bit_depth: 12,
-        chunk: Some(source_run(512, CANARY.grid.across * CANARY.grid.side)),
+        chunk: Some(source_run(
+            2 * CAMERA_RUN_WORDS,
+            CANARY.grid.across * CANARY.grid.side,
+        )),
         sort: false,
         ..CANARY
     },
     // As the STM32H743 runs it: the same frames written to a DMA ring as
     // its DCMI packs them, taken out by its camera source (`DcmiSource`:
-    // runs of at most 256 words cut at row ends, copied out of the ring
+    // runs of at most 512 words cut at row ends, copied out of the ring
     // and read as pixels) and pushed run by run, all of it counted.
     Workload {
         name: "canary-12bit-dcmi",
@@ -295,6 +298,15 @@ impl Measured {
     }
 }
 
+/// The camera source's run buffers as the STM32H743's camera path has
+/// them (its `storage::RUN_WORDS` and `RUN_PIXELS`, which it asserts equal
+/// to these): runs of up to 512 words, 1,024 pixels to unpack 8-bit words
+/// into (256 words of four). 10- to 16-bit words are read in place
+/// (`camera::packing::as_pixels`), two pixels each: runs of 512 words,
+/// about nine rows of a CANARY camera (112 pixels), cut at a row end.
+pub const CAMERA_RUN_WORDS: usize = 512;
+pub const CAMERA_RUN_PIXELS: usize = 1024;
+
 /// Buffers a workload runs in, from statics.
 pub struct Buffers<'b> {
     pub frame: &'b mut [u16],
@@ -304,8 +316,8 @@ pub struct Buffers<'b> {
     pub bounds: &'b mut [WindowBounds],
     pub engine_results: &'b mut [SubapertureResult],
     pub floor_results: &'b mut [SubapertureResult],
-    /// The camera source's run buffers (a workload with `camera`): at
-    /// least 256 words and 512 pixels, as the STM32H743's.
+    /// The camera source's run buffers (a workload with `camera`), as the
+    /// STM32H743's ([`CAMERA_RUN_WORDS`], [`CAMERA_RUN_PIXELS`]).
     pub camera_words: &'b mut [u32],
     pub camera_pixels: &'b mut [u16],
 }

@@ -44,7 +44,7 @@ pub const DCMI_MAX_PIXEL_CLOCK_HZ: f64 = 80.0e6;
 /// A board whose camera interface hands the engine something other than
 /// whole 16-bit rows pays for it: the STM32H743's DCMI writes 12-bit
 /// pixels into a DMA ring, which its camera source copies out in runs (at
-/// most 512 pixels, cut at row ends) and the engine takes run by run,
+/// most 512 words, 1,024 pixels, cut at row ends) and the engine takes run by run,
 /// checking each pixel against the bit depth ([`CostModel::STM32H743`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CostModel {
@@ -65,12 +65,12 @@ impl CostModel {
     /// Cortex-M7: CANARY 12.36 instr/px, 8x8 windows 30.09, last row 2,795.
     pub const CORTEX_M7: CostModel = CostModel::fit(12.36, 30.09, 2795.0);
     /// The STM32H743 (Cortex-M7) through its camera path: the bench's
-    /// `canary-12bit-dcmi` row (13.42 instr/px, last row 4,096: the
+    /// `canary-12bit-dcmi` row (13.04 instr/px, last row 4,110: the
     /// board's `DcmiSource` over a DMA ring, its runs, the 12-bit check)
-    /// against its whole-row CANARY (12.36, 2,795) adds 1.06 instructions
-    /// a pixel and 1,301 after the last pixel to the Cortex-M7's model.
+    /// against its whole-row CANARY (12.36, 2,795) adds 0.68 instructions
+    /// a pixel and 1,315 after the last pixel to the Cortex-M7's model.
     pub const STM32H743: CostModel =
-        CostModel::CORTEX_M7.with_camera_runs(12.36, 2795.0, 13.42, 4096.0);
+        CostModel::CORTEX_M7.with_camera_runs(12.36, 2795.0, 13.04, 4110.0);
 
     /// The model through the bench's two rows (see the type's documentation).
     pub const fn fit(canary: f64, windows_8x8: f64, canary_last_row: f64) -> CostModel {

@@ -8,13 +8,13 @@
 //! |---|---|---|
 //! | DTCM (128 KiB, RAM: `.data`/`.bss`/stack) | engine memory (1600 sub-apertures, 128 open windows, 3072 candidate entries) | about 77 000 |
 //! | | result queue (64 per row), link buffers, `PixelRows` batch | 5 600 |
-//! | | camera run buffers (256 words, 1024 pixels) | 3 072 |
+//! | | camera run buffers (512 words, 1024 pixels) | 4 096 |
 //! | | stack (at least, checked by the linker), executor task, USB, defmt | >= 16 384 + ~10 000 |
 //! | AXI SRAM (512 KiB, DMA-reachable) | DCMI DMA ring: 1920 words = 16 rows of 240 pixels at 16 bits | 7 680 |
 //! | | background maps, 2 slots x 57 600 x i32 | 460 800 |
 //! | | the engine's row history (16 rows of 240) and rescan scratch (a 16 x 16 window) | 10 240 |
 //! | | upload vetting scratch (2 x 1600 x u16; touched only by an upload) | 6 400 |
-//! | | the bench request's buffers (256 windows, 64 frames, a camera run) | 23 552 |
+//! | | the bench request's buffers (256 windows, 64 frames, a camera run) | 25 600 |
 //! | D2 SRAM1-3 (288 KiB) | gain maps, 2 slots x 57 600 x u16 | 230 400 |
 //! | | windows, pixel counts, reference slopes: 2 slots x 1600 x 18 | 57 600 |
 //!
@@ -63,8 +63,22 @@ pub const RESULTS_PER_ROW: usize = 64;
 /// (185 us at 180 frames/s of 240 rows) before an overrun. A multiple of
 /// 16 words (each half whole cache lines), below the DMA's 65 535.
 pub const RING_WORDS: usize = 1920;
-/// Words per pixel run handed to the device loop.
-pub const RUN_WORDS: usize = 256;
+/// Words per pixel run handed to the device loop, at most: 10- to 16-bit
+/// pixels are read in the words (`camera::packing::as_pixels`), so a run of
+/// 512 words is about nine rows of a 112-pixel camera. Longer runs cost the
+/// camera source fewer of its ~250 instructions a run (CANARY on the QEMU
+/// bench: 29 runs a frame of 256 words, 14 of 512; 13.46 against 13.09
+/// instructions a pixel on Cortex-M4 with the engine's last row prepared
+/// where the last run starts), within a ring half (960 words), which is
+/// what a wake-up finds.
+pub const RUN_WORDS: usize = 512;
+/// Pixels 8-bit words are unpacked into: a run of 256 words of four.
+pub const RUN_PIXELS: usize = 1024;
+// The bench measures the camera path with these buffers.
+const _: () = assert!(
+    RUN_WORDS == brightpix_bench::workloads::CAMERA_RUN_WORDS
+        && RUN_PIXELS == brightpix_bench::workloads::CAMERA_RUN_PIXELS
+);
 
 /// The capacities this build has, kept in the ELF for
 /// `scripts/board-memory` (the README's figures): sub-apertures, open
@@ -137,7 +151,7 @@ pub struct Dtcm {
     pub tx: [u8; MAX_FRAME_LEN],
     pub pixels: WordAligned<[u16; PIXEL_BATCH]>,
     pub run_words: [u32; RUN_WORDS],
-    pub run_pixels: WordAligned<[u16; 4 * RUN_WORDS]>,
+    pub run_pixels: WordAligned<[u16; RUN_PIXELS]>,
 }
 
 impl Dtcm {
@@ -149,7 +163,7 @@ impl Dtcm {
             tx: [0; MAX_FRAME_LEN],
             pixels: WordAligned([0; PIXEL_BATCH]),
             run_words: [0; RUN_WORDS],
-            run_pixels: WordAligned([0; 4 * RUN_WORDS]),
+            run_pixels: WordAligned([0; RUN_PIXELS]),
         }
     }
 }

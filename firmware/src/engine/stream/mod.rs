@@ -152,10 +152,10 @@ pub struct Engine<'c, 'm> {
     event_row: u16,
     /// The windows that end in the frame's last row are prepared at the
     /// start of this row (`last_row`), `event_row` stopping there too:
-    /// the last row, or earlier by as many rows as a push spans, so that
-    /// the push holding the frame's last pixel does not prepare them;
-    /// `u16::MAX`: never (a level filter, or pushes of half a frame or
-    /// more).
+    /// the last row, or the row in which the push holding the frame's last
+    /// pixel starts, so that that push does not prepare them
+    /// (`set_prepare_row`); `u16::MAX`: never (a level filter, or pushes
+    /// of half a frame or more).
     prepare_row: u16,
     /// Windows may end in closed form (`closed_form`): `subtract-next` or
     /// `threshold` without a level filter.

@@ -75,7 +75,10 @@ use static_cell::ConstStaticCell;
 use counter::Counter;
 use frames::Rng;
 use meter::Meter;
-use workloads::{Buffers, Measured, Workload, MAX_MAP_PIXELS, MAX_PIXELS, MAX_WINDOWS};
+use workloads::{
+    Buffers, Measured, Workload, CAMERA_RUN_PIXELS, CAMERA_RUN_WORDS, MAX_MAP_PIXELS, MAX_PIXELS,
+    MAX_WINDOWS,
+};
 
 /// Clock of the latency estimate (STM32H743 class), MHz.
 const CLOCK_MHZ: f64 = 480.0;
@@ -116,10 +119,11 @@ static ENGINE_RESULTS: ConstStaticCell<[SubapertureResult; MAX_WINDOWS]> =
 static FLOOR_RESULTS: ConstStaticCell<[SubapertureResult; MAX_WINDOWS]> =
     ConstStaticCell::new([NO_RESULT; MAX_WINDOWS]);
 
-/// The camera source's run buffers, as the STM32H743's: 256 words, 512
-/// pixels.
-static CAMERA_WORDS: ConstStaticCell<[u32; 256]> = ConstStaticCell::new([0; 256]);
-static CAMERA_PIXELS: ConstStaticCell<[u16; 512]> = ConstStaticCell::new([0; 512]);
+/// The camera source's run buffers, as the STM32H743's.
+static CAMERA_WORDS: ConstStaticCell<[u32; CAMERA_RUN_WORDS]> =
+    ConstStaticCell::new([0; CAMERA_RUN_WORDS]);
+static CAMERA_PIXELS: ConstStaticCell<[u16; CAMERA_RUN_PIXELS]> =
+    ConstStaticCell::new([0; CAMERA_RUN_PIXELS]);
 
 static MEMORY: ConstStaticCell<Memory> = ConstStaticCell::new(Memory::new());
 
