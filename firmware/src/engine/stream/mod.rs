@@ -591,7 +591,7 @@ impl<'c, 'm> Engine<'c, 'm> {
             let memory = &mut self.memory;
             let mut kept = 0;
             for k in 0..self.open_len {
-                let window = memory.open[k];
+                let window = &memory.open[k];
                 if window.finished {
                     memory.free[self.free_len] = window.buffer_number;
                     self.free_len += 1;
@@ -600,7 +600,7 @@ impl<'c, 'm> Engine<'c, 'm> {
                     }
                 } else {
                     if kept != k {
-                        memory.open[kept] = window;
+                        memory.open[kept] = memory.open[k];
                     }
                     kept += 1;
                 }
