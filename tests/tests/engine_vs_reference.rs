@@ -20,6 +20,55 @@ proptest! {
     }
 }
 
+/// Pushes of one length running from frame to frame (the frames one after
+/// the other in one stream, cut every `chunk` pixels whatever the frame
+/// boundaries), as a camera's fixed-size DMA blocks would: each frame meets
+/// the pushes at another offset, so where the last row's windows are
+/// prepared moves from frame to frame (`Engine::set_prepare_row`, worked
+/// out again after each frame whose length the pushes do not divide).
+mod pushes_across_frames {
+    use super::*;
+    use brightpix::engine_runner::EngineBuffers;
+    use brightpix_firmware::engine::{Engine, SubapertureResult};
+
+    proptest! {
+        #![proptest_config(brightpix_tests::differential_config(cases() / 5))]
+
+        #[test]
+        fn engine_matches_reference_with_pushes_across_frames(
+            (case, frames, chunks) in case(),
+            rows in 1usize..6,
+        ) {
+            let config = case.view();
+            let mut reference = Reference::new(&config).unwrap();
+            let mut buffers = EngineBuffers::for_config(&config);
+            let mut engine = Engine::new(config, buffers.memory()).unwrap();
+            // A length of a few rows and some pixels, so that pushes span
+            // rows (the preparation is then several rows early) and meet
+            // each frame elsewhere.
+            let chunk = rows * case.camera.width as usize + chunks[0];
+            let stream = frames.concat();
+            let mut got: Vec<SubapertureResult> = Vec::new();
+            for piece in stream.chunks(chunk) {
+                engine.push(piece, &mut |r: SubapertureResult| got.push(r)).unwrap();
+            }
+            let windows = config.windows.len();
+            prop_assert_eq!(got.len(), frames.len() * windows);
+            for (f, (frame, results)) in frames.iter().zip(got.chunks_mut(windows)).enumerate() {
+                results.sort_by_key(|r| r.index);
+                let want = reference.process_frame(frame).unwrap();
+                for (w, g) in want.iter().zip(results.iter()) {
+                    prop_assert_eq!(
+                        (w.index, w.slope_x, w.slope_y, w.flux, w.valid),
+                        (g.index as usize, g.slope_x, g.slope_y, g.flux, g.valid),
+                        "frame {} of {}, pushes of {}", f, frames.len(), chunk
+                    );
+                }
+            }
+        }
+    }
+}
+
 /// SPEC.md §8: a frame with an out-of-range pixel. The engine emits exactly
 /// the sub-apertures completed before the bad pixel, with the values the
 /// reference gives them, and the level-filter state afterwards agrees (the

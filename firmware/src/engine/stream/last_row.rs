@@ -121,7 +121,9 @@ impl Engine<'_, '_> {
     /// end does more (DMA runs of nine 112-pixel rows prepared nine rows
     /// before the last instead of four: CANARY +0.3 instructions a pixel
     /// on Cortex-M4); later, in the push holding the last pixel, it adds
-    /// to the work after that pixel. Not at all with pushes of half a
+    /// to the work after that pixel; after a frame that pushes of this
+    /// length do not divide, again at the next push
+    /// (`Engine::push_len_next_frame`). Not at all with pushes of half a
     /// frame or more.
     #[cold]
     #[inline(never)]
@@ -131,6 +133,11 @@ impl Engine<'_, '_> {
             self.config.camera.width as usize,
             self.config.camera.height as usize,
         );
+        self.push_len_next_frame = if (width * height).is_multiple_of(len.max(1)) {
+            len
+        } else {
+            0
+        };
         // The rows a push spans: a push that is whole rows `len / width` of
         // them; any other, up to two more.
         let rows = if len.is_multiple_of(width) {

@@ -174,6 +174,14 @@ pub struct Engine<'c, 'm> {
     all_complement: bool,
     /// The length of the last push, from which `prepare_row` was set.
     push_len: usize,
+    /// What `push_len` becomes as a frame ends: the same if it divides the
+    /// frame, else 0 (which matches only an empty push, which does
+    /// nothing). Pushes of one length that run from frame to frame meet
+    /// each frame at another offset unless their length divides it, so
+    /// where the push holding the last pixel starts is then worked out
+    /// again at the next push (`set_prepare_row`). Set with `push_len`, so
+    /// that the frame's end, after its last pixel, only copies it.
+    push_len_next_frame: usize,
     /// Which instance of `push_with` a push takes (the calibration steps,
     /// the range check and the complement, bits as in [`variant`]):
     /// decided once per configuration, so that a push is one indexed jump.
@@ -273,6 +281,7 @@ impl<'c, 'm> Engine<'c, 'm> {
             complement: complement::applies(&config),
             all_complement: false,
             push_len: 0,
+            push_len_next_frame: 0,
             variant: variant(&config),
             open_len: 0,
             // Not the open windows' count: `start_frame` lists the free
@@ -652,6 +661,7 @@ impl<'c, 'm> Engine<'c, 'm> {
         self.scan.gain_row = c.gain.map_or(0, |g| g.as_ptr() as usize);
         self.position_row = 0;
         self.next_to_open = 0;
+        self.push_len = self.push_len_next_frame;
         self.update_event_row();
         self.update_layout();
         // The first row's windows open in `push_with`.
