@@ -5,7 +5,7 @@
 use super::admission::FreshWindow;
 use super::Engine;
 use crate::engine::centroid::Moments;
-use crate::engine::select::{preferred_capacity, Entry, Ties};
+use crate::engine::select::{preferred_capacity_of, Entry, Ties};
 use crate::engine::window::{OpenWindow, Raise};
 
 impl Engine<'_, '_> {
@@ -72,8 +72,12 @@ impl Engine<'_, '_> {
             let pixels = w.width * w.height;
             if n != last_n || pixels != last_pixels {
                 // The stride is at least every window's least capacity (plan).
-                last_capacity = preferred_capacity(self.config.selection.rule, n, pixels as usize)
-                    .min(self.stride as u16);
+                last_capacity = preferred_capacity_of::<HINT_ABOVE>(
+                    self.config.selection.rule,
+                    n,
+                    pixels as usize,
+                )
+                .min(self.stride as u16);
                 (last_n, last_pixels) = (n, pixels);
             }
             let capacity = last_capacity;
