@@ -132,7 +132,7 @@ pub fn preferred_capacity(rule: SelectionRule, n: u16, pixels: usize) -> u16 {
 /// test of the rule in the loop cost the other rules' openings registers
 /// (Cortex-M4 CANARY +0.03 to +0.06 instructions a pixel).
 #[inline(always)]
-pub fn preferred_capacity_of<const DISTINCT: bool>(
+pub(crate) fn preferred_capacity_of<const DISTINCT: bool>(
     rule: SelectionRule,
     n: u16,
     pixels: usize,
