@@ -44,8 +44,9 @@ pub const DCMI_MAX_PIXEL_CLOCK_HZ: f64 = 80.0e6;
 /// A board whose camera interface hands the engine something other than
 /// whole 16-bit rows pays for it: the STM32H743's DCMI writes 12-bit
 /// pixels into a DMA ring, which its camera source copies out in runs (at
-/// most 512 words, 1,024 pixels, cut at row ends) and the engine takes run by run,
-/// checking each pixel against the bit depth ([`CostModel::STM32H743`]).
+/// most 512 words, 1,024 pixels, cut at row ends) and the engine takes run
+/// by run, checking each pixel against the bit depth
+/// ([`CostModel::STM32H743`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CostModel {
     pub per_pixel: f64,

@@ -8,10 +8,9 @@
 //! As the last row begins (or, when pushes span several rows, as the row
 //! begins in which the push holding the frame's last pixel starts, so
 //! that that push has nothing to prepare: `Engine::set_prepare_row`), a
-//! window whose
-//! candidates reach `v(N+1)` (its back tier dropped, admission strict)
-//! takes `u = v(N+1)` of its candidates so far (`F`: the front and the
-//! hint's ties). A window whose front still falls short of N + 1 (its
+//! window whose candidates reach `v(N+1)` (its back tier dropped,
+//! admission strict) takes `u = v(N+1)` of its candidates so far (`F`: the
+//! front and the hint's ties). A window whose front still falls short of N + 1 (its
 //! spot dimmed or moved since the hint was set: a quarter of the ELT
 //! workload's last windows) first lowers its hint to that `u`, which then
 //! lies in its back tier, keeping the back's entries at or above it
