@@ -436,13 +436,20 @@ impl Top {
             return;
         }
         let below = &mut scratch[..len];
-        let w = kth_largest_in_place(below, want);
-        // The `want` largest: those above w, and copies of w.
-        let (above_sum, above) = below
-            .iter()
-            .filter(|&&x| x > w)
-            .fold((0i64, 0usize), |(s, c), &x| (s + x as i64, c + 1));
-        self.sum += above_sum + w as i64 * (want - above) as i64;
+        let w = if want <= NEAR {
+            let (sum, w) = sum_of_largest(below.iter().copied(), want);
+            self.sum += sum as i64;
+            w
+        } else {
+            let w = kth_largest_in_place(below, want);
+            // The `want` largest: those above w, and copies of w.
+            let (above_sum, above) = below
+                .iter()
+                .filter(|&&x| x > w)
+                .fold((0i64, 0usize), |(s, c), &x| (s + x as i64, c + 1));
+            self.sum += above_sum + w as i64 * (want - above) as i64;
+            w
+        };
         self.taken += want;
         self.smallest = w;
     }
@@ -488,9 +495,19 @@ pub(crate) fn kth_largest_in_place(values: &mut [i32], k: usize) -> i32 {
     }
 }
 
+/// The sum of the `k` largest of `values` (`1 <= k <= NEAR`, at most `k`
+/// values taken, duplicates counted) and the smallest of them, in one pass
+/// ([`extremes`]): a level rule's `k` values below `v(N)`. The sum in 32
+/// bits: `k <= 8` values of `|p| < 2^25` (SPEC.md §2).
+#[inline(always)]
+pub(crate) fn sum_of_largest(values: impl Iterator<Item = i32>, k: usize) -> (i32, i32) {
+    let largest = extremes::<true, i32>(values, |p| p, k);
+    (largest[..k].iter().sum(), largest[k - 1])
+}
+
 /// Within this many of either end, [`kth_largest`] keeps a small sorted
 /// array in one pass.
-const NEAR: usize = 8;
+pub(crate) const NEAR: usize = 8;
 
 /// Within this many of the front's smallest value above the hint, [`cut`]
 /// finds its order statistic in one pass over the front (see
@@ -623,7 +640,9 @@ pub fn cut(rule: &WindowRule, c: &mut Tiers<'_>) -> Result<Cut, TooShallow> {
             Ok(Cut {
                 bound: v,
                 strict: false,
-                level: (taken > 0).then(|| sum.div_euclid(taken as i64) as i32),
+                // `taken <= 16` values of `|p| < 2^25`: the sum fits 32
+                // bits, and a 32-bit division is `sdiv` on Cortex-M.
+                level: (taken > 0).then(|| (sum as i32).div_euclid(taken as i32)),
                 cutoff: smallest,
             })
         }

@@ -406,20 +406,32 @@ fn level_from_below(
             if m == 0 || from_tie > copies {
                 return None;
             }
-            let (mut sum, mut cutoff) = (from_tie as i64 * tie as i64, tie);
+            // In 32 bits: M <= 16 values, each `|p| < 2^25` (SPEC.md §2),
+            // sum below 2^29 in magnitude; a 64-bit division is a library
+            // call on Cortex-M (~65 instructions), a 32-bit one `sdiv`.
+            let (mut sum, mut cutoff) = (from_tie as i32 * tie, tie);
             if taken > 0 {
-                // The `taken` largest: those above `w`, and copies of `w`.
-                let w = select::kth_largest_in_place(below, taken);
-                let (above, count) = below
-                    .iter()
-                    .filter(|&&p| p > w)
-                    .fold((0i64, 0usize), |(s, c), &p| (s + p as i64, c + 1));
-                sum += above + w as i64 * (taken - count) as i64;
+                // The `taken` largest: in one pass up to `select::NEAR`
+                // (`below` holds a few values), else those above the
+                // `taken`-th largest `w` and copies of `w`.
+                let w = if taken <= select::NEAR {
+                    let (largest, w) = select::sum_of_largest(below.iter().copied(), taken);
+                    sum += largest;
+                    w
+                } else {
+                    let w = select::kth_largest_in_place(below, taken);
+                    let (above, count) = below
+                        .iter()
+                        .filter(|&&p| p > w)
+                        .fold((0i32, 0usize), |(s, c), &p| (s + p, c + 1));
+                    sum += above + w * (taken - count) as i32;
+                    w
+                };
                 if from_tie == 0 {
                     cutoff = w;
                 }
             }
-            Some((cutoff, sum.div_euclid(m as i64) as i32))
+            Some((cutoff, sum.div_euclid(m as i32)))
         }
         _ => None,
     }
