@@ -49,8 +49,9 @@
 //! below `v(N)`) take `u = v(N)`, the level and `w`, the smallest value
 //! that sets it (`b`, or the M-th largest below `u`), of their candidates
 //! so far when `w` is at or above the hint, so that the back tier can go
-//! ([`prepare_level_rule`]); the window then admits `p > w` (nothing at or
-//! below `w` can change the level). At the end, `v(N)` is still `u` unless
+//! ([`prepare_level_rule`]), or with the hint first lowered to `w` when the
+//! cutoff fell below it ([`lower_hint_to`], as above); the window then
+//! admits `p > w` (nothing at or below `w` can change the level). At the end, `v(N)` is still `u` unless
 //! the last row's pixels above `u` make N, and the level stays unless the
 //! last row brought values between `w` and `u`: for distinct the largest
 //! of them is then the level, for mean the window ends the ordinary way,
@@ -317,7 +318,8 @@ fn write_block(entries: &mut [Entry], capacity: usize, t: i32, front: usize) {
 /// `u = v(N)`, the level and `w`, the smallest of the values below `u`
 /// that set it (`b` itself, or the M-th largest), of the candidates so
 /// far, if `w` is at or above the hint (so the back tier, below it, can
-/// go, as `raise_to_hint` would drop it), with no hint or low ties. The
+/// go, as `raise_to_hint` would drop it), else with the hint lowered to
+/// `w` ([`lower_hint_to`]); with no hint or low ties. The
 /// final `v(N)` is at least `u`, and values at or below `w` can no longer
 /// change the level, so from then on the window admits `p > w`; the block
 /// holds the sums of the front's pixels at or above `u`, and the entry
@@ -343,28 +345,44 @@ fn prepare_level_rule(
         return;
     }
     settle_at_hint(window);
-    let front = window.front();
-    let capacity = window.capacity as usize;
     // SAFETY: the window's live buffer, no other reference to it.
     let entries = unsafe { window.entries() };
     // Of these rules, a cut with the candidates incomplete is `Ok` only
     // with all the values that set its level (its `cutoff` the smallest).
-    let (u, level, w) = match cut_so_far(window, config.selection.rule, entries, scratch) {
-        Ok(Cut {
-            bound: u,
-            level: Some(level),
-            cutoff: w,
-            ..
+    let Ok(Cut {
+        bound: u,
+        level: Some(level),
+        cutoff: w,
+        ..
+    }) = cut_so_far(window, config.selection.rule, entries, scratch)
+    else {
+        return;
+    };
+    if w < window.hint {
+        // The cutoff fell below the hint (the spot dimmed or moved, a
+        // fifth of CANARY's distinct windows): the hint lowered to `w`,
+        // the back's entries at or above it moved to the front, the rest
+        // dropped (nothing at or below `w` can change the level), and the
+        // window is prepared as one whose hint was `w` all along. Not with
+        // hint ties (copies of the old hint outside the buffer).
+        if window.hint_ties.count != 0
+            || window.strict
+            || lower_hint_to(window, w, room, MOST_N as usize).is_none()
+        {
+            return;
+        }
+    } else if window.hint_ties.count != 0 && u <= window.hint {
         // `subtract-next-distinct`'s hint ties (the copy of its lowered
         // hint, `admission::raise_below_front`, or a compaction's cut
         // at the level) lie below `u`, its `v(N)`, which is above the
         // hint then; checked, since the block sums front pixels only and
         // ties at `u` would weigh.
-        }) if w >= window.hint && (window.hint_ties.count == 0 || u > window.hint) => {
-            (u, level, w)
-        }
-        _ => return,
-    };
+        return;
+    }
+    let front = window.front();
+    let capacity = window.capacity as usize;
+    // SAFETY: as above; the lowering's borrow ended.
+    let entries = unsafe { window.entries() };
     // `u > w`, so `u - 1` does not overflow, nor `w + 1`.
     write_block(entries, capacity, u - 1, front);
     entries[capacity - BLOCK_END - LEVEL] = Entry {
@@ -418,8 +436,34 @@ fn lower_hint_to_cutoff(
     let capacity = window.capacity as usize;
     // SAFETY: the window's live buffer, no other reference to it.
     let entries = unsafe { window.entries() };
+    let u = select::kth_largest(&entries[capacity - back..], rank - front, scratch);
+    let longest = if threshold {
+        MOST_N as usize
+    } else {
+        usize::MAX
+    };
+    lower_hint_to(window, u, room, longest)?;
+    // As after `raise_to_hint`: strict for `subtract-next`; for
+    // `threshold` not, since fewer than N are above `u`. Admission and
+    // attention are the caller's to set.
+    window.strict = !threshold;
+    Some(u)
+}
+
+/// The hint lowered to `u`, a value at or above `low` that the back tier
+/// may hold: the back's entries at or above `u` move to the front's end,
+/// the rest go, so that the front holds every pixel at or above `u` and the
+/// window is one whose hint was `u` all along. `None`, and the window
+/// unchanged, if fewer than `room` entries would be left free or the
+/// front would reach `longest` entries. For a window without hint or low
+/// ties (copies of the old hint or of `low` outside the buffer); its
+/// strictness, admission and attention are the caller's to set.
+fn lower_hint_to(window: &mut OpenWindow, u: i32, room: usize, longest: usize) -> Option<()> {
+    let (front, back) = (window.front(), window.back());
+    let capacity = window.capacity as usize;
+    // SAFETY: the window's live buffer, no other reference to it.
+    let entries = unsafe { window.entries() };
     let back_start = capacity - back;
-    let u = select::kth_largest(&entries[back_start..], rank - front, scratch);
     // The copies below land in the free space, never on a back entry not
     // yet read: at once if the whole back fits there, else after counting
     // them. Until the front is set they are scratch, so a window left with
@@ -443,7 +487,7 @@ fn lower_hint_to_cutoff(
             at_u += (e.value == u) as u16;
         }
     }
-    if capacity - to < room || (threshold && to >= MOST_N as usize) {
+    if capacity - to < room || to >= longest {
         return None;
     }
     window.set_front(to);
@@ -453,12 +497,8 @@ fn lower_hint_to_cutoff(
     // The old front's entries are above the old hint, so above `u`.
     window.at_hint = at_u;
     window.counted = to as u16;
-    // As after `raise_to_hint`: strict for `subtract-next`; for
-    // `threshold` not, since fewer than N are above `u`. Admission and
-    // attention are the caller's to set.
-    window.strict = !threshold;
     window.raise = Raise::NONE;
-    Some(u)
+    Some(())
 }
 
 impl Engine<'_, '_> {
