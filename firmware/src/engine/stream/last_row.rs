@@ -49,14 +49,15 @@
 //! below `v(N)`) take `u = v(N)`, the level and `w`, the smallest value
 //! that sets it (`b`, or the M-th largest below `u`), of their candidates
 //! so far when `w` is at or above the hint, so that the back tier can go
-//! ([`prepare_level_rule`]), or with the hint first lowered to `w` when the
-//! cutoff fell below it ([`lower_hint_to`], as above); the window then
-//! admits `p > w` (nothing at or below `w` can change the level). At the end, `v(N)` is still `u` unless
-//! the last row's pixels above `u` make N, and the level stays unless the
-//! last row brought values between `w` and `u`: for distinct the largest
-//! of them is then the level, for mean the window ends the ordinary way,
-//! as it does when `v(N)` moved. The sums and the last row's pixels at or
-//! above `u` weigh at the level (`prepared_level_end`).
+//! ([`prepare_level_rule`]), or with the hint first lowered to `w` when
+//! the cutoff fell below it ([`lower_hint_to`], as above); the window then
+//! admits `p > w` (nothing at or below `w` can change the level). At the
+//! end, `v(N)` is still `u` unless the last row's pixels above `u` make N,
+//! and the level stays unless the last row brought values between `w` and
+//! `u`: for distinct the largest of them is then the level, for mean the
+//! window ends the ordinary way, as it does when `v(N)` moved. The sums
+//! and the last row's pixels at or above `u` weigh at the level
+//! (`prepared_level_end`).
 
 use super::admission::{admit_at, settle_at_hint};
 use super::closed_form::{cutoff_and_moments, weigh};
@@ -319,11 +320,11 @@ fn write_block(entries: &mut [Entry], capacity: usize, t: i32, front: usize) {
 /// that set it (`b` itself, or the M-th largest), of the candidates so
 /// far, if `w` is at or above the hint (so the back tier, below it, can
 /// go, as `raise_to_hint` would drop it), else with the hint lowered to
-/// `w` ([`lower_hint_to`]); with no hint or low ties. The
-/// final `v(N)` is at least `u`, and values at or below `w` can no longer
-/// change the level, so from then on the window admits `p > w`; the block
-/// holds the sums of the front's pixels at or above `u`, and the entry
-/// before it the level and `w`.
+/// `w` ([`lower_hint_to`]); with no hint or low ties. The final `v(N)` is
+/// at least `u`, and values at or below `w` can no longer change the
+/// level, so from then on the window admits `p > w`; the block holds the
+/// sums of the front's pixels at or above `u`, and the entry before it the
+/// level and `w`.
 #[inline(always)]
 fn prepare_level_rule(
     window: &mut OpenWindow,
