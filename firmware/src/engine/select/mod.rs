@@ -63,7 +63,7 @@ fn column(position: u16) -> u16 {
 }
 
 #[inline(always)]
-fn row(position: u16) -> u16 {
+pub(crate) fn row(position: u16) -> u16 {
     position >> COLUMN_BITS
 }
 

@@ -201,21 +201,81 @@ impl Engine<'_, '_> {
 /// 0.13 instructions a pixel more on Cortex-M4; half a margin sent N = 5's
 /// rescans to the second attempt (+0.2).
 #[inline(always)]
-fn rescan_bound(low: i32, hint: i32) -> i32 {
+pub(super) fn rescan_bound(low: i32, hint: i32) -> i32 {
     let margin = hint.saturating_sub(low).max(0);
     low.saturating_sub(margin).saturating_sub(1)
 }
 
 /// Where a rescanned window's raw pixels are: the frame pushed whole, or
 /// the engine's row history.
-struct WindowRows<'h> {
-    history: &'h [u16],
-    history_rows: usize,
-    whole_frame: usize,
-    width: usize,
+pub(super) struct WindowRows<'h> {
+    pub(super) history: &'h [u16],
+    pub(super) history_rows: usize,
+    pub(super) whole_frame: usize,
+    pub(super) width: usize,
 }
 
 impl WindowRows<'_> {
+    /// Row `j` of `window` (one the frame has delivered), calibrated into
+    /// `row`.
+    #[inline(always)]
+    fn calibrated<'r>(
+        &self,
+        window: &OpenWindow,
+        calibrator: &Calibrator<'_>,
+        row: &'r mut [i32],
+        j: usize,
+    ) -> &'r [i32] {
+        let (x, w) = (window.x as usize, window.width as usize);
+        let y = window.y as usize + j;
+        let pixel = y * self.width + x;
+        let raw = if self.whole_frame != 0 {
+            // SAFETY: the frame is whole in the slice of the current call
+            // to `push` (`whole_frame`), and the window lies in it.
+            unsafe { core::slice::from_raw_parts((self.whole_frame as *const u16).add(pixel), w) }
+        } else {
+            let at = (y % self.history_rows) * self.width + x;
+            &self.history[at..at + w]
+        };
+        let row = &mut row[..w];
+        calibrator.calibrate(raw, pixel, row);
+        row
+    }
+
+    /// The window's pixels in `[bound, below)` of its first `rows` rows,
+    /// calibrated, into the first entries of `out` (with their positions);
+    /// their number, or `None` if `out` cannot hold them.
+    pub(super) fn between(
+        &self,
+        window: &OpenWindow,
+        calibrator: &Calibrator<'_>,
+        row: &mut [i32],
+        (bound, below): (i32, i32),
+        rows: usize,
+        out: &mut [Entry],
+    ) -> Option<usize> {
+        let mut kept = 0;
+        for j in 0..rows {
+            for (i, &p) in self
+                .calibrated(window, calibrator, row, j)
+                .iter()
+                .enumerate()
+            {
+                if p >= bound && p < below {
+                    if kept == out.len() {
+                        return None;
+                    }
+                    out[kept] = Entry {
+                        value: p,
+                        position: pack(i as u16, j as u16) as u32,
+                    };
+                    kept += 1;
+                }
+            }
+        }
+        Some(kept)
+    }
+
     /// The window's pixels at or above `bound`, calibrated, into the first
     /// entries of `out` (with their positions), row after row; their number
     /// and how many equal `bound`.
@@ -227,23 +287,9 @@ impl WindowRows<'_> {
         bound: i32,
         out: &mut [Entry],
     ) -> (usize, u16) {
-        let (x, w) = (window.x as usize, window.width as usize);
         let (mut kept, mut at_bound) = (0, 0u16);
         for j in 0..window.height as usize {
-            let y = window.y as usize + j;
-            let pixel = y * self.width + x;
-            let raw = if self.whole_frame != 0 {
-                // SAFETY: the frame is whole in the slice of the current
-                // call to `push` (`whole_frame`), and the window lies in it.
-                unsafe {
-                    core::slice::from_raw_parts((self.whole_frame as *const u16).add(pixel), w)
-                }
-            } else {
-                let at = (y % self.history_rows) * self.width + x;
-                &self.history[at..at + w]
-            };
-            let row = &mut row[..w];
-            calibrator.calibrate(raw, pixel, row);
+            let row = self.calibrated(window, calibrator, row, j);
             for (i, &p) in row.iter().enumerate() {
                 if p >= bound {
                     out[kept] = Entry {

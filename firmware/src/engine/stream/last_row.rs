@@ -59,8 +59,9 @@
 //! and the last row's pixels at or above `u` weigh at the level
 //! (`prepared_level_end`).
 
-use super::admission::{admit_at, settle_at_hint};
+use super::admission::{admit_at, attention, settle_at_hint, update_admission};
 use super::closed_form::{cutoff_and_moments, weigh};
+use super::finish::{rescan_bound, WindowRows};
 use super::{Engine, OutputSink};
 use crate::engine::centroid::{self, Moments, SumsAbove};
 use crate::engine::select::{self, Cut, Entry, Tiers, TooShallow, WindowRule};
@@ -172,23 +173,100 @@ impl Engine<'_, '_> {
             let window = &self.memory.open[k];
             if window.last_row == last && window.y < self.row {
                 let rows_left = (last + 1 - self.row) as usize;
+                let (config, max_raw) = (&self.config, self.max_raw);
                 let window = &mut self.memory.open[k];
-                prepare(
-                    window,
-                    &self.config,
-                    self.max_raw,
-                    self.memory.scratch,
-                    rows_left,
-                );
+                let short = prepare(window, config, max_raw, self.memory.scratch, rows_left);
+                if short > 0 && self.take_missed_rows(k, rows_left, short) {
+                    let window = &mut self.memory.open[k];
+                    prepare(
+                        window,
+                        &self.config,
+                        max_raw,
+                        self.memory.scratch,
+                        rows_left,
+                    );
+                }
             }
         }
+    }
+
+    /// A window whose candidates so far fall `short` of its cutoff as it
+    /// is prepared (by about that many: its seed was too high), and whose
+    /// rows still to come are unlikely to make up for it (each brought
+    /// fewer candidates than that in its previous row: a spot's window
+    /// ends in background, a ramp's does not), would be rescanned after
+    /// the last pixel. It takes the pixels it missed from its rows so far
+    /// instead, down to the bound a rescan would start from
+    /// ([`rescan_bound`]): those in `[bound, low)` join its back tier, and
+    /// `low` becomes the bound. The rescan's reading then comes before the
+    /// last row, not after it, and the window can be prepared. `false`,
+    /// the window unchanged, if the rows to come may make up for it, or the
+    /// pixels would leave fewer entries free than every pixel still to come
+    /// and the block. Counted as a rescan.
+    #[cold]
+    #[inline(never)]
+    fn take_missed_rows(&mut self, k: usize, rows_left: usize, short: usize) -> bool {
+        let memory = &mut self.memory;
+        let window = &mut memory.open[k];
+        let rows_so_far = (self.row - window.y) as usize;
+        let (front, back, capacity) = (window.front(), window.back(), window.capacity as usize);
+        // SAFETY: the window's live buffer, no other reference to it.
+        let entries = unsafe { window.entries() };
+        // Candidates in the last two rows so far (`recent`, `before`).
+        let (mut recent, mut before) = (0, 0);
+        for e in entries[..front].iter().chain(&entries[capacity - back..]) {
+            let j = select::row(e.position as u16) as usize + 2;
+            recent += (j == rows_so_far + 1) as usize;
+            before += (j == rows_so_far) as usize;
+        }
+        if recent > before || recent * rows_left >= short {
+            return false;
+        }
+        let reserve = rows_left * window.width as usize + BLOCK_END + LEVEL;
+        let Some(most) = window.room_left().checked_sub(reserve) else {
+            return false;
+        };
+        let rows = WindowRows {
+            history: memory.history,
+            history_rows: self.history_rows,
+            whole_frame: self.whole_frame,
+            width: self.config.camera.width as usize,
+        };
+        let bound = rescan_bound(window.low, window.hint);
+        let range = (bound, window.low);
+        let most = most.min(memory.rescan.len());
+        let out = &mut memory.rescan[..most];
+        let calibrator = &self.calibrator;
+        let Some(added) = rows.between(
+            window,
+            calibrator,
+            &mut self.calibrated,
+            range,
+            rows_so_far,
+            out,
+        ) else {
+            return false;
+        };
+        self.stats.rescans = self.stats.rescans.wrapping_add(1);
+        let at = capacity - back - added;
+        entries[at..capacity - back].copy_from_slice(&out[..added]);
+        window.set_back(back + added);
+        window.low = bound;
+        update_admission(window, &self.config, self.max_raw);
+        window.attention = attention(window, self.config.selection.rule);
+        self.refresh_ready(k);
+        true
     }
 }
 
 /// See the module documentation. Leaves the window as it was unless it can
 /// be prepared: among other things, its buffer must have room for every
 /// pixel of its `rows_left` rows still to come besides the block, so that
-/// nothing the window admits from now on can reach the block.
+/// nothing the window admits from now on can reach the block. Not 0 if it
+/// was not because its candidates so far fall short of the rule's cutoff,
+/// by about that many (they do not reach it, and it has no ties outside
+/// the buffer and is not strict: `Engine::take_missed_rows` can add what
+/// it missed).
 #[inline(never)]
 fn prepare(
     window: &mut OpenWindow,
@@ -196,13 +274,13 @@ fn prepare(
     max_raw: u16,
     scratch: &mut [i32],
     rows_left: usize,
-) {
+) -> usize {
     if level_rule(config.selection.rule) {
         return prepare_level_rule(window, config, max_raw, scratch, rows_left);
     }
     let room = rows_left * window.width as usize + BLOCK_END;
     if window.capacity == 0 || window.n >= MOST_N || window.rescan || window.low_ties.count != 0 {
-        return;
+        return 0;
     }
     let threshold = config.selection.rule == SelectionRule::Threshold;
     // Raised: `subtract-next`'s windows are then strict, `threshold`'s
@@ -213,7 +291,7 @@ fn prepare(
     } else {
         match lower_hint_to_cutoff(window, scratch, room, threshold) {
             Some(u) => Some(u),
-            None => return,
+            None => return falls_short(window, threshold),
         }
     };
     // Raised, `subtract-next`'s windows are also strict (`attention`
@@ -230,7 +308,7 @@ fn prepare(
                 window.attention != usize::MAX
             })
     {
-        return;
+        return 0;
     }
     settle_at_hint(window);
     let front = window.front();
@@ -241,7 +319,7 @@ fn prepare(
         Some(u) => u,
         None => match cut_so_far(window, config.selection.rule, entries, scratch) {
             Ok(cut) if cut.cutoff >= window.hint => cut.cutoff,
-            _ => return,
+            _ => return 0,
         },
     };
     // The pixels that can still be kept are those above `t`, and the
@@ -251,11 +329,25 @@ fn prepare(
     // `v(N)` is at least `u`, and ties with it are kept).
     let t = if threshold { u.checked_sub(1) } else { Some(u) };
     let Some(t) = t.filter(|&t| t < i32::MAX) else {
-        return;
+        return 0;
     };
     write_block(entries, capacity, t, front);
     window.attention = PREPARED;
     admit_at(window, config, max_raw, t + 1);
+    0
+}
+
+/// How many fewer candidates than the cutoff's rank a `subtract-next` or
+/// `threshold` window that [`lower_hint_to_cutoff`] left alone holds, if
+/// it would lower its hint with them (no ties outside the buffer, not
+/// strict, N up to [`MOST_LOWERED_N`]); else 0.
+fn falls_short(window: &OpenWindow, threshold: bool) -> usize {
+    let (n, held) = (window.n as usize, window.front() + window.back());
+    let rank = if threshold { n } else { n + 1 };
+    if window.hint_ties.count != 0 || window.strict || n > MOST_LOWERED_N {
+        return 0;
+    }
+    rank.saturating_sub(held)
 }
 
 /// `rule`'s cut of `window`'s candidates so far (its buffer `entries`,
@@ -332,7 +424,7 @@ fn prepare_level_rule(
     max_raw: u16,
     scratch: &mut [i32],
     rows_left: usize,
-) {
+) -> usize {
     let room = rows_left * window.width as usize + BLOCK_END + LEVEL;
     if window.capacity == 0
         || window.n >= MOST_N
@@ -343,21 +435,27 @@ fn prepare_level_rule(
         || window.front() >= MOST_N as usize
         || window.room_left() < room
     {
-        return;
+        return 0;
     }
     settle_at_hint(window);
     // SAFETY: the window's live buffer, no other reference to it.
     let entries = unsafe { window.entries() };
     // Of these rules, a cut with the candidates incomplete is `Ok` only
     // with all the values that set its level (its `cutoff` the smallest).
-    let Ok(Cut {
-        bound: u,
-        level: Some(level),
-        cutoff: w,
-        ..
-    }) = cut_so_far(window, config.selection.rule, entries, scratch)
-    else {
-        return;
+    let (u, level, w) = match cut_so_far(window, config.selection.rule, entries, scratch) {
+        Ok(Cut {
+            bound: u,
+            level: Some(level),
+            cutoff: w,
+            ..
+        }) => (u, level, w),
+        // Short (by what, the count does not say: the level may need a
+        // value below `v(N)` however many are held, so N); the ties
+        // outside the buffer keep a lowering out.
+        Err(TooShallow) if window.hint_ties.count == 0 && !window.strict => {
+            return window.n as usize;
+        }
+        _ => return 0,
     };
     if w < window.hint {
         // The cutoff fell below the hint (the spot dimmed or moved, a
@@ -370,7 +468,7 @@ fn prepare_level_rule(
             || window.strict
             || lower_hint_to(window, w, room, MOST_N as usize).is_none()
         {
-            return;
+            return 0;
         }
     } else if window.hint_ties.count != 0 && u <= window.hint {
         // `subtract-next-distinct`'s hint ties (the copy of its lowered
@@ -378,7 +476,7 @@ fn prepare_level_rule(
         // at the level) lie below `u`, its `v(N)`, which is above the
         // hint then; checked, since the block sums front pixels only and
         // ties at `u` would weigh.
-        return;
+        return 0;
     }
     let front = window.front();
     let capacity = window.capacity as usize;
@@ -395,6 +493,7 @@ fn prepare_level_rule(
     window.strict = true;
     window.attention = PREPARED;
     admit_at(window, config, max_raw, w + 1);
+    0
 }
 
 /// A window whose front falls short of N + 1 (the spot dimmed or moved
