@@ -192,8 +192,9 @@ impl Engine<'_, '_> {
 
     /// A window whose candidates so far fall `short` of its cutoff as it
     /// is prepared (by about that many: its seed was too high), and whose
-    /// rows still to come are unlikely to make up for it (each brought
-    /// fewer candidates than that in its previous row: a spot's window
+    /// rows still to come are unlikely to make up for it (its last row so
+    /// far brought no more candidates than the row before, and the rows
+    /// left, at that many each, would not make `short`: a spot's window
     /// ends in background, a ramp's does not), would be rescanned after
     /// the last pixel. It takes the pixels it missed from its rows so far
     /// instead, down to the bound a rescan would start from
