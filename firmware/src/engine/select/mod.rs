@@ -435,21 +435,8 @@ impl Top {
         if want == 0 {
             return;
         }
-        let below = &mut scratch[..len];
-        let w = if want <= NEAR {
-            let (sum, w) = sum_of_largest(below.iter().copied(), want);
-            self.sum += sum as i64;
-            w
-        } else {
-            let w = kth_largest_in_place(below, want);
-            // The `want` largest: those above w, and copies of w.
-            let (above_sum, above) = below
-                .iter()
-                .filter(|&&x| x > w)
-                .fold((0i64, 0usize), |(s, c), &x| (s + x as i64, c + 1));
-            self.sum += above_sum + w as i64 * (want - above) as i64;
-            w
-        };
+        let (sum, w) = sum_of_largest_in_place(&mut scratch[..len], want);
+        self.sum += sum as i64;
         self.taken += want;
         self.smallest = w;
     }
@@ -486,7 +473,7 @@ pub fn kth_largest(entries: &[Entry], k: usize, scratch: &mut [i32]) -> i32 {
 }
 
 /// As [`kth_largest`], permuting `values` instead of copying them.
-pub(crate) fn kth_largest_in_place(values: &mut [i32], k: usize) -> i32 {
+fn kth_largest_in_place(values: &mut [i32], k: usize) -> i32 {
     let len = values.len();
     if k <= NEAR || len - k < NEAR {
         kth_largest_near_ends(values, k)
@@ -495,14 +482,23 @@ pub(crate) fn kth_largest_in_place(values: &mut [i32], k: usize) -> i32 {
     }
 }
 
-/// The sum of the `k` largest of `values` (`1 <= k <= NEAR`, at most `k`
-/// values taken, duplicates counted) and the smallest of them, in one pass
-/// ([`extremes`]): a level rule's `k` values below `v(N)`. The sum in 32
-/// bits: `k <= 8` values of `|p| < 2^25` (SPEC.md §2).
-#[inline(always)]
-pub(crate) fn sum_of_largest(values: impl Iterator<Item = i32>, k: usize) -> (i32, i32) {
-    let largest = extremes::<true, i32>(values, |p| p, k);
-    (largest[..k].iter().sum(), largest[k - 1])
+/// The sum of the `k` largest of `values` (`1 <= k <= values.len()`,
+/// duplicates counted) and the smallest of them: a level rule's `k` values
+/// below `v(N)`. Up to [`NEAR`] in one pass ([`extremes`]: `values` holds a
+/// few values when the cutoff is near the hint); else those above the k-th
+/// largest `w` and copies of `w`, after permuting `values`. The sum in 32
+/// bits: `k <= 16` values (`MAX_MEAN_COUNT`) of `|p| < 2^25` (SPEC.md §2).
+pub(crate) fn sum_of_largest_in_place(values: &mut [i32], k: usize) -> (i32, i32) {
+    if k <= NEAR {
+        let largest = extremes::<true, i32>(values.iter().copied(), |p| p, k);
+        return (largest[..k].iter().sum(), largest[k - 1]);
+    }
+    let w = kth_largest_in_place(values, k);
+    let (above, count) = values
+        .iter()
+        .filter(|&&p| p > w)
+        .fold((0i32, 0usize), |(s, c), &p| (s + p, c + 1));
+    (above + w * (k - count) as i32, w)
 }
 
 /// Within this many of either end, [`kth_largest`] keeps a small sorted

@@ -411,22 +411,8 @@ fn level_from_below(
             // call on Cortex-M (~65 instructions), a 32-bit one `sdiv`.
             let (mut sum, mut cutoff) = (from_tie as i32 * tie, tie);
             if taken > 0 {
-                // The `taken` largest: in one pass up to `select::NEAR`
-                // (`below` holds a few values), else those above the
-                // `taken`-th largest `w` and copies of `w`.
-                let w = if taken <= select::NEAR {
-                    let (largest, w) = select::sum_of_largest(below.iter().copied(), taken);
-                    sum += largest;
-                    w
-                } else {
-                    let w = select::kth_largest_in_place(below, taken);
-                    let (above, count) = below
-                        .iter()
-                        .filter(|&&p| p > w)
-                        .fold((0i32, 0usize), |(s, c), &p| (s + p, c + 1));
-                    sum += above + w * (taken - count) as i32;
-                    w
-                };
+                let (largest, w) = select::sum_of_largest_in_place(below, taken);
+                sum += largest;
                 if from_tie == 0 {
                     cutoff = w;
                 }
