@@ -117,7 +117,7 @@ impl Engine<'_, '_> {
                     }
                     moments
                 }
-                None => {
+                None => 'rescan: {
                     self.stats.rescans = self.stats.rescans.wrapping_add(1);
                     let pixels = rule.pixels as usize;
                     let rows = WindowRows {
@@ -126,12 +126,42 @@ impl Engine<'_, '_> {
                         whole_frame: self.whole_frame,
                         width: self.config.camera.width as usize,
                     };
-                    // First the pixels at or above a bound below `low` (the
-                    // cutoff is below it, usually by less than the margin
-                    // again: `rescan_bound`), cut as the candidates of a
-                    // window raised to that bound, which holds if it is
-                    // `Ok`; else every pixel, calibrated again.
+                    // A bound below `low` (the cutoff is below it, usually
+                    // by less than the margin again: `rescan_bound`).
                     let bound = rescan_bound(window.low, window.hint);
+                    // A window whose seed was too high holds every pixel at
+                    // or above `low` as entries (unless a raise made it
+                    // strict, or ties were counted): only the pixels in
+                    // `[bound, low)` are read again, after a copy of its
+                    // back tier, and cut with its tiers, the copy and them
+                    // the back (as `Engine::take_missed_rows` before the
+                    // last row).
+                    let held_whole = !window.rescan
+                        && !window.strict
+                        && window.hint_ties.count == 0
+                        && window.low_ties.count == 0;
+                    if held_whole {
+                        let lower = cut_below_low(
+                            &rows,
+                            window,
+                            (&self.calibrator, &mut self.calibrated),
+                            (entries, &rule, bound),
+                            memory.rescan,
+                            memory.scratch,
+                        );
+                        if let Some((cut, lower)) = lower {
+                            let level = level(&cut, state);
+                            state.seed.observe(cut.cutoff, too_high);
+                            // No ties: the front's pixels and the new back's.
+                            let mut moments = Moments::ZERO;
+                            select::add_moments(&mut moments, &cut, level, &entries[..front]);
+                            select::add_moments(&mut moments, &cut, level, &memory.rescan[..lower]);
+                            break 'rescan moments;
+                        }
+                    }
+                    // Else the pixels at or above `bound`, cut as the
+                    // candidates of a window raised to it, which holds if it
+                    // is `Ok`; else every pixel, calibrated again.
                     let (kept, at_bound) = rows.candidates(
                         window,
                         &self.calibrator,
@@ -192,6 +222,48 @@ impl Engine<'_, '_> {
             window.height,
         ));
     }
+}
+
+/// The cut of a window that holds every pixel at or above `low` as entries
+/// (none of them in tie buckets) once the pixels in `[bound, low)` are read
+/// again: they and a copy of the back tier, the new back, in `rescan` (its
+/// length returned with the cut); `None` if the cut still falls short. Out
+/// of line, so that the usual end does not carry it.
+#[cold]
+#[inline(never)]
+fn cut_below_low(
+    rows: &WindowRows<'_>,
+    window: &OpenWindow,
+    (calibrator, row): (&Calibrator<'_>, &mut [i32]),
+    (entries, rule, bound): (&[Entry], &WindowRule, i32),
+    rescan: &mut [Entry],
+    scratch: &mut [i32],
+) -> Option<(Cut, usize)> {
+    let (front, back, capacity) = (window.front(), window.back(), window.capacity as usize);
+    rescan[..back].copy_from_slice(&entries[capacity - back..]);
+    let range = (bound, window.low);
+    let rows_all = window.height as usize;
+    let added = rows.between(
+        window,
+        calibrator,
+        row,
+        range,
+        rows_all,
+        &mut rescan[back..],
+    )?;
+    let mut tiers = Tiers {
+        front: &entries[..front],
+        front_at_hint: window.at_hint,
+        hint: window.hint,
+        hint_ties: 0,
+        back: &rescan[..back + added],
+        low: bound,
+        low_ties: 0,
+        complete: front + back + added == rule.pixels as usize,
+        scratch,
+    };
+    let cut = select::cut(rule, &mut tiers).ok()?;
+    Some((cut, back + added))
 }
 
 /// Where a rescan looks first: as far below `low` as the seed's margin
