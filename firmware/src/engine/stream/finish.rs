@@ -11,6 +11,7 @@ use crate::engine::calibrate::Calibrator;
 use crate::engine::centroid::Moments;
 use crate::engine::select::{self, pack, Cut, Entry, Tiers, WindowRule};
 use crate::engine::window::{OpenWindow, SubapertureState};
+use brightpix_protocol::Config;
 
 impl Engine<'_, '_> {
     /// A window's last pixel has arrived: its result, and what it leaves for
@@ -120,12 +121,12 @@ impl Engine<'_, '_> {
                 None => 'rescan: {
                     self.stats.rescans = self.stats.rescans.wrapping_add(1);
                     let pixels = rule.pixels as usize;
-                    let rows = WindowRows {
-                        history: memory.history,
-                        history_rows: self.history_rows,
-                        whole_frame: self.whole_frame,
-                        width: self.config.camera.width as usize,
-                    };
+                    let rows = WindowRows::new(
+                        memory.history,
+                        self.history_rows,
+                        self.whole_frame,
+                        &self.config,
+                    );
                     // A bound below `low` (the cutoff is below it, usually
                     // by less than the margin again: `rescan_bound`).
                     let bound = rescan_bound(window.low, window.hint);
@@ -281,13 +282,31 @@ pub(super) fn rescan_bound(low: i32, hint: i32) -> i32 {
 /// Where a rescanned window's raw pixels are: the frame pushed whole, or
 /// the engine's row history.
 pub(super) struct WindowRows<'h> {
-    pub(super) history: &'h [u16],
-    pub(super) history_rows: usize,
-    pub(super) whole_frame: usize,
-    pub(super) width: usize,
+    history: &'h [u16],
+    history_rows: usize,
+    whole_frame: usize,
+    width: usize,
 }
 
-impl WindowRows<'_> {
+impl<'h> WindowRows<'h> {
+    /// The current frame's rows: in the frame pushed whole (`whole_frame`,
+    /// its first pixel's address; 0 if not), else in the `history` ring of
+    /// `history_rows` camera rows.
+    #[inline(always)]
+    pub(super) fn new(
+        history: &'h [u16],
+        history_rows: usize,
+        whole_frame: usize,
+        config: &Config<'_>,
+    ) -> Self {
+        WindowRows {
+            history,
+            history_rows,
+            whole_frame,
+            width: config.camera.width as usize,
+        }
+    }
+
     /// Row `j` of `window` (one the frame has delivered), calibrated into
     /// `row`.
     #[inline(always)]

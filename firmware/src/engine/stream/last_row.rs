@@ -227,12 +227,12 @@ impl Engine<'_, '_> {
         let Some(most) = window.room_left().checked_sub(reserve) else {
             return false;
         };
-        let rows = WindowRows {
-            history: memory.history,
-            history_rows: self.history_rows,
-            whole_frame: self.whole_frame,
-            width: self.config.camera.width as usize,
-        };
+        let rows = WindowRows::new(
+            memory.history,
+            self.history_rows,
+            self.whole_frame,
+            &self.config,
+        );
         let bound = rescan_bound(window.low, window.hint);
         let range = (bound, window.low);
         let most = most.min(memory.rescan.len());
