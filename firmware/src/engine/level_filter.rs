@@ -18,7 +18,15 @@ impl LevelFilterState {
 
     /// Feeds this frame's instantaneous level; returns the level to subtract.
     pub fn update(&mut self, level: Option<i32>, gain_shift: u8) -> Option<i32> {
-        let target = (level? as i64) << LEVEL_FILTER_FRACTION_BITS;
+        Some(self.filter(level?, gain_shift))
+    }
+
+    /// [`update`](Self::update) with a level (none leaves the state as it
+    /// is). The state is `Copy`: an end that may still give up updates a
+    /// copy and stores it once it cannot.
+    #[inline(always)]
+    pub fn filter(&mut self, level: i32, gain_shift: u8) -> i32 {
+        let target = (level as i64) << LEVEL_FILTER_FRACTION_BITS;
         let state = if self.biased == 0 {
             target
         } else {
@@ -26,6 +34,6 @@ impl LevelFilterState {
             state + ((target - state) >> gain_shift)
         };
         self.biased = state ^ BIAS;
-        Some((state >> LEVEL_FILTER_FRACTION_BITS) as i32)
+        (state >> LEVEL_FILTER_FRACTION_BITS) as i32
     }
 }

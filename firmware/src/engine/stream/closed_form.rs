@@ -1,4 +1,4 @@
-//! A window's cutoff and moments in closed form, without a level filter.
+//! A window's cutoff and moments in closed form.
 //! For `subtract-next`, the windows without low ties whose candidates
 //! reach `v(N+1)`: the weights are `p - v` over `p > v`, so
 //!
@@ -25,6 +25,16 @@
 //! sums above `v(N) - 1` at their level, once the few values below `v(N)`
 //! that set it are found.
 //!
+//! With a level filter (SPEC.md §4) the cutoff and the instantaneous level
+//! are found the same way, the filter's state is updated from that level
+//! and the moments are taken at the filtered level `L` instead. For
+//! `subtract-next` the pixels weighing are those above `max(v, L)`, each
+//! `p - L` (`moments_at_level`: the sums' closed form at `L`, less the
+//! pixels from the hint up to `max(v, L)`, found by a pass over the front
+//! unless `L = v`). For the level rules every kept pixel weighs `p - L` if
+//! `L < v(N)`; otherwise (the level jumped) the window ends the ordinary
+//! way, the filter's state as it was ([`filtered_below`]).
+//!
 //! Exact integer identities: the result is the ordinary end's bit for
 //! bit. The frame's last row (`last_row`) keeps such sums too, for the
 //! pixels above `v(N+1)` of the candidates so far, and ends its windows
@@ -35,6 +45,7 @@ use super::{Engine, OutputSink};
 use crate::engine::centroid::{self, Moments, SumsAbove};
 use crate::engine::select::{self, Entry, Ties};
 use crate::engine::window::OpenWindow;
+use crate::engine::LevelFilterState;
 use brightpix_protocol::SelectionRule;
 
 /// Below this many front entries the coordinate sums of the pixels above
@@ -60,9 +71,11 @@ const MOST_SMALLEST: usize = 8;
 /// and whose pixels above `u` are `before`'s above `u` (summed in `sums`)
 /// and all of `last` (every one above `u`), with `v(N+1) >= u`. `v(N+1)`
 /// is `u` if at most N pixels are above it, else the `(above - N)`-th
-/// smallest above it; the moments are the sums' closed form at `v`, less
-/// `before`'s pixels between `u` and `v` (summed with a negative weight),
-/// plus `last`'s above `v`. `scratch` holds at least as many values as
+/// smallest above it. `level` gives the level to subtract from `v(N+1)`:
+/// `v(N+1)` itself, or the level filter's (SPEC.md §4). At `v` the moments
+/// are the sums' closed form, less `before`'s pixels between `u` and `v`
+/// (summed with a negative weight), plus `last`'s above `v`; at another
+/// level, [`moments_at_level`]. `scratch` holds at least as many values as
 /// `before` and `last` together.
 #[inline(always)]
 pub(super) fn cutoff_and_moments(
@@ -72,12 +85,15 @@ pub(super) fn cutoff_and_moments(
     last: &[Entry],
     n: usize,
     scratch: &mut [i32],
+    level: impl FnOnce(i32) -> i32,
 ) -> (i32, Moments) {
     let above = sums.count as usize + last.len();
     if above > n && above - n <= MOST_SMALLEST && last.is_empty() {
         // The `m` smallest entries above `u`, kept whole: `v` is the last,
         // and the entries between `u` and `v` are among the others, so
-        // no second pass over `before` takes them back out.
+        // no second pass over `before` takes them back out (with a
+        // filtered level, copies of `v` beyond them and pixels up to a
+        // level above `v` may weigh: a second pass).
         let m = above - n;
         let smallest = select::extremes::<false, Entry>(
             before.iter().copied().filter(|e| e.value > u),
@@ -85,6 +101,10 @@ pub(super) fn cutoff_and_moments(
             m,
         );
         let v = smallest[m - 1].value;
+        let l = level(v);
+        if l != v {
+            return (v, moments_at_level(u, sums, before, last, v, l));
+        }
         let mut moments = sums.moments(v);
         for e in smallest[..m - 1].iter().filter(|e| e.value < v) {
             weigh(&mut moments, e, v as i64, -1);
@@ -107,17 +127,34 @@ pub(super) fn cutoff_and_moments(
         }
         *copy.select_nth_unstable(above - n - 1).1
     };
-    let v64 = v as i64;
-    let mut moments = sums.moments(v);
-    if v > u {
-        for e in before.iter().filter(|e| e.value > u && e.value < v) {
-            weigh(&mut moments, e, v64, -1);
+    (v, moments_at_level(u, sums, before, last, v, level(v)))
+}
+
+/// The moments of `p - l` over the pixels above `max(v, l)`, those of
+/// [`cutoff_and_moments`]'s window: the kept pixels `p > v` weighing
+/// `max(0, p - l)` (SPEC.md §3-4). The sums' closed form at `l`, less
+/// `before`'s pixels between `u` and `max(v, l)`, plus `last`'s above it;
+/// with `l = v`, as the ordinary end at `v(N+1)`.
+#[inline(always)]
+fn moments_at_level(
+    u: i32,
+    sums: &SumsAbove,
+    before: &[Entry],
+    last: &[Entry],
+    v: i32,
+    l: i32,
+) -> Moments {
+    let (c, l64) = (v.max(l), l as i64);
+    let mut moments = sums.moments(l);
+    if c > u {
+        for e in before.iter().filter(|e| e.value > u && e.value <= c) {
+            weigh(&mut moments, e, l64, -1);
         }
     }
-    for e in last.iter().filter(|e| e.value > v) {
-        weigh(&mut moments, e, v64, 1);
+    for e in last.iter().filter(|e| e.value > c) {
+        weigh(&mut moments, e, l64, 1);
     }
-    (v, moments)
+    moments
 }
 
 /// Whether the front of `window` (which selects, and has no low ties)
@@ -139,7 +176,11 @@ fn front_reaches_cutoff(window: &OpenWindow) -> bool {
 /// `v(N+1)`, which the pass that finds it keeps when it is among the
 /// back's few largest.
 #[inline(always)]
-fn cutoff_in_back(window: &OpenWindow, scratch: &mut [i32]) -> Option<(i32, Moments)> {
+fn cutoff_in_back(
+    window: &OpenWindow,
+    scratch: &mut [i32],
+    level: impl FnOnce(i32) -> i32,
+) -> Option<(i32, Moments)> {
     let (front, back, n) = (window.front(), window.back(), window.n as usize);
     // Hint ties come only with `low` raised to the hint (a compaction's or
     // `raise_to_hint`'s), which empties the back.
@@ -153,19 +194,26 @@ fn cutoff_in_back(window: &OpenWindow, scratch: &mut [i32]) -> Option<(i32, Mome
     let capacity = window.capacity as usize;
     let back = &entries[capacity - back..capacity];
     let front = &entries[..front];
+    // With a filtered level `l` above `v`, the pixels weighing are those
+    // above `l` (`c`): the front's above it, and the back's, which are
+    // also above `v`, so among its `k - 1` largest.
     Some(if k <= MOST_SMALLEST {
         let largest = select::extremes::<true, Entry>(back.iter().copied(), |e| e.value, k);
         let v = largest[k - 1].value;
-        let mut moments = centroid::sums_above(front, v).moments(v);
-        for e in largest[..k - 1].iter().filter(|e| e.value > v) {
-            weigh(&mut moments, e, v as i64, 1);
+        let l = level(v);
+        let c = v.max(l);
+        let mut moments = centroid::sums_above(front, c).moments(l);
+        for e in largest[..k - 1].iter().filter(|e| e.value > c) {
+            weigh(&mut moments, e, l as i64, 1);
         }
         (v, moments)
     } else {
         let v = select::kth_largest(back, k, scratch);
-        let mut moments = centroid::sums_above(front, v).moments(v);
-        for e in back.iter().filter(|e| e.value > v) {
-            weigh(&mut moments, e, v as i64, 1);
+        let l = level(v);
+        let c = v.max(l);
+        let mut moments = centroid::sums_above(front, c).moments(l);
+        for e in back.iter().filter(|e| e.value > c) {
+            weigh(&mut moments, e, l as i64, 1);
         }
         (v, moments)
     })
@@ -252,11 +300,17 @@ fn threshold_end(window: &mut OpenWindow, scratch: &mut [i32]) -> Option<(i32, M
 ///
 /// Anything else (`v(N)` deeper in the back tier, candidates that do not
 /// reach the level) ends the ordinary way, which also rescans.
+///
+/// `level` gives the level to subtract from the instantaneous level and
+/// `v(N)`: the instantaneous level, or the level filter's if it lies below
+/// `v(N)` (so that every kept pixel weighs `p - L`); `None` ends the
+/// window the ordinary way. It is called last, when nothing else can fail.
 #[inline(always)]
 fn level_rule_end(
     window: &mut OpenWindow,
     rule: SelectionRule,
     scratch: &mut [i32],
+    level: impl FnOnce(i32, i32) -> Option<i32>,
 ) -> Option<(i32, Moments)> {
     settle_at_hint(window);
     let (f, n, hint, ties) = (
@@ -276,7 +330,7 @@ fn level_rule_end(
         let back = &entries[capacity - window.back()..capacity];
         if above + copies < n {
             return if rule == SelectionRule::SubtractNextDistinct {
-                distinct_cutoff_in_back(window, front, back, above + copies)
+                distinct_cutoff_in_back(window, front, back, above + copies, level)
             } else {
                 None
             };
@@ -293,10 +347,10 @@ fn level_rule_end(
         for (c, e) in below.iter_mut().zip(back) {
             *c = e.value;
         }
-        let (cutoff, level) =
+        let (cutoff, l) =
             level_from_below(rule, below, window.low, window.low_ties.count as usize)?;
-        let moments = centroid::sums_above(front, hint.checked_sub(1)?).moments(level);
-        return Some((cutoff, moments));
+        let sums = centroid::sums_above(front, hint.checked_sub(1)?);
+        return Some((cutoff, sums.moments(level(l, hint)?)));
     }
     let m = above - n + 1;
     let mut few;
@@ -324,7 +378,8 @@ fn level_rule_end(
             len += 1;
         }
     }
-    let (cutoff, level) = level_from_below(rule, &mut below[..len], hint, copies)?;
+    let (cutoff, l) = level_from_below(rule, &mut below[..len], hint, copies)?;
+    let level = level(l, v)?;
     // `v - 1`: `v` is above the hint.
     Some((cutoff, centroid::sums_above(front, v - 1).moments(level)))
 }
@@ -345,6 +400,7 @@ fn distinct_cutoff_in_back(
     front: &[Entry],
     back: &[Entry],
     held: usize,
+    level: impl FnOnce(i32, i32) -> Option<i32>,
 ) -> Option<(i32, Moments)> {
     // Low ties (after a compaction, rare) are left to the ordinary end.
     if window.low_ties.count != 0 {
@@ -371,10 +427,11 @@ fn distinct_cutoff_in_back(
         return None;
     }
     let ties = window.hint_ties;
+    let l = level(below, b)?;
     // Every front value is at or above the hint, which is above `b`.
-    let mut moments = centroid::sums_above(front, b).moments(below);
-    moments.add_group(window.hint - below, ties.count, ties.sum_i, ties.sum_j);
-    moments.add_group(b - below, copies.count, copies.sum_i, copies.sum_j);
+    let mut moments = centroid::sums_above(front, b).moments(l);
+    moments.add_group(window.hint - l, ties.count, ties.sum_i, ties.sum_j);
+    moments.add_group(b - l, copies.count, copies.sum_i, copies.sum_j);
     Some((below, moments))
 }
 
@@ -425,19 +482,39 @@ fn level_from_below(
 
 impl Engine<'_, '_> {
     /// The end of window `k`, which selects, in closed form (see the module
-    /// documentation), for `subtract-next` or `threshold` without a level
-    /// filter: `false` (nothing done) if the ordinary end must compute it
-    /// (a rescan, low ties, a long front, or a cutoff deeper than the
-    /// closed forms reach). Out of line for the same reason as
-    /// `finish_prepared`.
+    /// documentation), for `subtract-next` or `threshold` (`FILTERED`:
+    /// `subtract-next` with a level filter, its state updated from
+    /// `v(N+1)` and the moments at its level): `false` (nothing done) if
+    /// the ordinary end must compute it (a rescan, low ties, a long front,
+    /// or a cutoff deeper than the closed forms reach). Out of line for
+    /// the same reason as `finish_prepared`.
     #[inline(never)]
-    pub(super) fn finish_in_closed_form(&mut self, k: usize, sink: &mut impl OutputSink) -> bool {
-        let window = &mut self.memory.open[k];
+    pub(super) fn finish_in_closed_form<const FILTERED: bool>(
+        &mut self,
+        k: usize,
+        sink: &mut impl OutputSink,
+    ) -> bool {
+        let memory = &mut self.memory;
+        let window = &mut memory.open[k];
         if window.rescan || window.low_ties.count != 0 || window.front() >= MOST_FRONT {
             return false;
         }
+        // Called once `v(N+1)` is known, when nothing can fail any more.
+        let gain_shift = self
+            .config
+            .selection
+            .level_filter
+            .map_or(0, |f| f.gain_shift);
+        let (subapertures, index) = (&mut *memory.subapertures, window.index as usize);
+        let level = |v| {
+            if FILTERED {
+                subapertures[index].level.filter(v, gain_shift)
+            } else {
+                v
+            }
+        };
         let end = if self.config.selection.rule == SelectionRule::Threshold {
-            threshold_end(window, self.memory.scratch)
+            threshold_end(window, memory.scratch)
         } else if front_reaches_cutoff(window) {
             // SAFETY: the window's buffer (opened with it), no other
             // reference to it alive.
@@ -450,10 +527,11 @@ impl Engine<'_, '_> {
                 front,
                 &[],
                 window.n as usize,
-                self.memory.scratch,
+                memory.scratch,
+                level,
             ))
         } else {
-            cutoff_in_back(window, self.memory.scratch)
+            cutoff_in_back(window, memory.scratch, level)
         };
         let Some((v, moments)) = end else {
             return false;
@@ -470,24 +548,55 @@ impl Engine<'_, '_> {
     /// A method of its own, so that `subtract-next`'s stays as lean (one
     /// more rule in it cost CANARY 0.03 instructions a pixel on Cortex-M4).
     #[inline(never)]
-    pub(super) fn finish_level_rule_in_closed_form(
+    pub(super) fn finish_level_rule_in_closed_form<const FILTERED: bool>(
         &mut self,
         k: usize,
         sink: &mut impl OutputSink,
     ) -> bool {
-        let window = &mut self.memory.open[k];
+        let memory = &mut self.memory;
+        let window = &mut memory.open[k];
         // Low ties are welcome: only the level may need them.
         if window.rescan || window.front() >= MOST_FRONT {
             return false;
         }
         let rule = self.config.selection.rule;
-        let Some((cutoff, moments)) = level_rule_end(window, rule, self.memory.scratch) else {
+        // Two calls, so that without a filter the level is a closure with
+        // nothing to carry (`distinct_cutoff_in_back` is out of line).
+        let end = if FILTERED {
+            let gain_shift = self
+                .config
+                .selection
+                .level_filter
+                .map_or(0, |f| f.gain_shift);
+            let state = &mut memory.subapertures[window.index as usize].level;
+            level_rule_end(window, rule, memory.scratch, |l, cutoff| {
+                filtered_below(state, l, gain_shift, cutoff)
+            })
+        } else {
+            level_rule_end(window, rule, memory.scratch, |l, _| Some(l))
+        };
+        let Some((cutoff, moments)) = end else {
             return false;
         };
         let back = window.back() as u32;
         self.stats.candidates = self.stats.candidates.wrapping_add(back);
         self.emit(k, cutoff, moments, sink);
         true
+    }
+
+    /// The end of window `k`, which selects, in closed form with a level
+    /// filter: `subtract-next`'s or the level rules'.
+    #[inline(always)]
+    pub(super) fn finish_filtered_in_closed_form(
+        &mut self,
+        k: usize,
+        sink: &mut impl OutputSink,
+    ) -> bool {
+        if self.config.selection.rule == SelectionRule::SubtractNext {
+            self.finish_in_closed_form::<true>(k, sink)
+        } else {
+            self.finish_level_rule_in_closed_form::<true>(k, sink)
+        }
     }
 
     /// Window `k`'s end computed (`v(N+1)` and moments, by a closed form):
@@ -510,6 +619,26 @@ impl Engine<'_, '_> {
             window.height,
         ));
     }
+}
+
+/// For `subtract-next-distinct` and `subtract-mean`, whose kept pixels are
+/// at or above `cutoff` (`v(N)`): the filtered level from this frame's
+/// level `l`, with `state` updated, if it lies below `cutoff`, so that
+/// every kept pixel weighs `p - L` (SPEC.md §4); else `None`, `state` as
+/// it was (the ordinary end then updates it and weighs `max(0, p - L)`).
+#[inline(always)]
+pub(super) fn filtered_below(
+    state: &mut LevelFilterState,
+    l: i32,
+    gain_shift: u8,
+    cutoff: i32,
+) -> Option<i32> {
+    let mut next = *state;
+    let filtered = next.filter(l, gain_shift);
+    (filtered < cutoff).then(|| {
+        *state = next;
+        filtered
+    })
 }
 
 /// Adds (`sign` 1) or takes away (-1) `e`'s weight `p - v` in the moments.

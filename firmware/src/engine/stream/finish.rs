@@ -24,10 +24,16 @@ impl Engine<'_, '_> {
             return;
         }
         let selects = window.capacity != 0;
-        if self.closed_form && selects && self.finish_in_closed_form(k, sink) {
+        if self.closed_form && selects && self.finish_in_closed_form::<false>(k, sink) {
             return;
         }
-        if self.level_closed_form && selects && self.finish_level_rule_in_closed_form(k, sink) {
+        if self.level_closed_form
+            && selects
+            && self.finish_level_rule_in_closed_form::<false>(k, sink)
+        {
+            return;
+        }
+        if self.filtered_closed_form && selects && self.finish_filtered_in_closed_form(k, sink) {
             return;
         }
         self.finish_ordinary(k, sink);

@@ -1,9 +1,11 @@
 //! The frame's last row: what is left after the frame's last pixel is the
 //! end of the windows in that row, and that is the latency the camera side
-//! exists to cut. For every rule without a level filter most of a
-//! window's end is done as the last row begins, from the candidates so
-//! far; after the last pixel only the last row's few candidates are merged
-//! in. `subtract-next` first, then what the other rules do differently.
+//! exists to cut. For every rule most of a window's end is done as the
+//! last row begins, from the candidates so far; after the last pixel only
+//! the last row's few candidates are merged in, and a level filter's
+//! state is updated from the frame's level (`closed_form` gives the
+//! moments at the filtered level). `subtract-next` first, then what the
+//! other rules do differently.
 //!
 //! As the last row begins (or, when pushes span several rows, as the row
 //! begins in which the push holding the frame's last pixel starts, so
@@ -60,7 +62,7 @@
 //! (`prepared_level_end`).
 
 use super::admission::{admit_at, attention, settle_at_hint, update_admission};
-use super::closed_form::{cutoff_and_moments, weigh};
+use super::closed_form::{cutoff_and_moments, filtered_below, weigh};
 use super::finish::{rescan_bound, WindowRows};
 use super::{Engine, OutputSink};
 use crate::engine::centroid::{self, Moments, SumsAbove};
@@ -150,9 +152,7 @@ impl Engine<'_, '_> {
         let rule = self.config.selection.rule;
         let prepared_rule = matches!(rule, SelectionRule::SubtractNext | SelectionRule::Threshold)
             || level_rule(rule);
-        let prepares = prepared_rule
-            && self.config.selection.level_filter.is_none()
-            && rows.max(1) < height / 2;
+        let prepares = prepared_rule && rows.max(1) < height / 2;
         self.prepare_row = if prepares {
             // The next pixel is `here` (a row of the frame: `row < height`).
             let here = self.row as usize * width + self.column as usize;
@@ -612,16 +612,58 @@ impl Engine<'_, '_> {
         if self.config.selection.rule != SelectionRule::SubtractNext {
             return self.finish_prepared_other(k, sink);
         }
+        if self.filtered_closed_form {
+            return self.finish_prepared_filtered(k, sink);
+        }
         let window = &self.memory.open[k];
         // SAFETY: the window's buffer (opened with it), no other reference
         // to it alive.
         let entries: &[Entry] = unsafe { window.entries() };
-        let (v, moments) = prepared_end(window, entries, self.memory.scratch);
+        let (v, moments) = prepared_end(window, entries, self.memory.scratch, |v| v);
         self.emit(k, v, moments, sink);
     }
 
+    /// [`finish_prepared`](Self::finish_prepared) with a level filter
+    /// (`subtract-next` and the level rules): the filter's state updated
+    /// from this frame's level, the moments at its level; for the level
+    /// rules, the ordinary end if that level is not below `v(N)`
+    /// ([`filtered_below`]) or the last row moved `v(N)` above `u`. Out of
+    /// line, as the next.
+    #[inline(never)]
+    fn finish_prepared_filtered(&mut self, k: usize, sink: &mut impl OutputSink) {
+        let memory = &mut self.memory;
+        let window = &memory.open[k];
+        // SAFETY: the window's buffer (opened with it), no other reference
+        // to it alive.
+        let entries: &[Entry] = unsafe { window.entries() };
+        let gain_shift = self
+            .config
+            .selection
+            .level_filter
+            .map_or(0, |f| f.gain_shift);
+        let state = &mut memory.subapertures[window.index as usize].level;
+        let end = match self.config.selection.rule {
+            SelectionRule::SubtractNext => {
+                Some(prepared_end(window, entries, memory.scratch, |v| {
+                    state.filter(v, gain_shift)
+                }))
+            }
+            rule => prepared_level_end(
+                window,
+                entries,
+                rule == SelectionRule::SubtractNextDistinct,
+                |l, cutoff| filtered_below(state, l, gain_shift, cutoff),
+            ),
+        };
+        match end {
+            Some((v, moments)) => self.emit(k, v, moments, sink),
+            None => self.finish_ordinary(k, sink),
+        }
+    }
+
     /// [`finish_prepared`](Self::finish_prepared) for `threshold`,
-    /// `subtract-next-distinct` and `subtract-mean`, or the ordinary end
+    /// `subtract-next-distinct` and `subtract-mean` without a level
+    /// filter, or the ordinary end
     /// when the last row moved `v(N)` above `u` ([`prepared_threshold_end`],
     /// [`prepared_level_end`]). Out of line, so that `subtract-next`'s
     /// end stays as it was.
@@ -633,9 +675,13 @@ impl Engine<'_, '_> {
         let entries: &[Entry] = unsafe { window.entries() };
         let end = match self.config.selection.rule {
             SelectionRule::Threshold => prepared_threshold_end(window, entries),
-            rule => {
-                prepared_level_end(window, entries, rule == SelectionRule::SubtractNextDistinct)
-            }
+            _ if self.filtered_closed_form => return self.finish_prepared_filtered(k, sink),
+            rule => prepared_level_end(
+                window,
+                entries,
+                rule == SelectionRule::SubtractNextDistinct,
+                |l, _| Some(l),
+            ),
         };
         match end {
             Some((v, moments)) => self.emit(k, v, moments, sink),
@@ -662,12 +708,18 @@ fn prepared_block(window: &OpenWindow, entries: &[Entry]) -> (i32, usize, SumsAb
 }
 
 /// A prepared `subtract-next` window's `v(N+1)` and moments (see the
-/// module documentation).
-fn prepared_end(window: &OpenWindow, entries: &[Entry], scratch: &mut [i32]) -> (i32, Moments) {
+/// module documentation), at the level `level` gives from `v(N+1)`.
+#[inline(always)]
+fn prepared_end(
+    window: &OpenWindow,
+    entries: &[Entry],
+    scratch: &mut [i32],
+    level: impl FnOnce(i32) -> i32,
+) -> (i32, Moments) {
     let (u, prepared_front, sums) = prepared_block(window, entries);
     let before = &entries[..prepared_front];
     let last = &entries[prepared_front..window.front()];
-    cutoff_and_moments(u, &sums, before, last, window.n as usize, scratch)
+    cutoff_and_moments(u, &sums, before, last, window.n as usize, scratch, level)
 }
 
 /// For a window prepared with `u = v(N)` (`threshold`,
@@ -713,12 +765,15 @@ fn prepared_threshold_end(window: &OpenWindow, entries: &[Entry]) -> Option<(i32
 /// between `w` and `u` are the only ones that can change it. For
 /// distinct the largest of them is the level if above it; for mean any
 /// of them sends the window to the ordinary end (`None`). The sums and
-/// the last row's pixels at or above `u` weigh at the level.
+/// the last row's pixels at or above `u` weigh at the level to subtract,
+/// which `level_to_subtract` gives from that level and `u` (as
+/// `closed_form::level_rule_end`'s `level`; `None`: the ordinary end).
 #[inline(always)]
 fn prepared_level_end(
     window: &OpenWindow,
     entries: &[Entry],
     distinct: bool,
+    level_to_subtract: impl FnOnce(i32, i32) -> Option<i32>,
 ) -> Option<(i32, Moments)> {
     let (u, last, sums) = cutoff_stays(window, entries)?;
     let kept = entries[window.capacity as usize - BLOCK_END - LEVEL];
@@ -731,6 +786,7 @@ fn prepared_level_end(
         level = level.max(e.value);
         cutoff = level;
     }
+    let level = level_to_subtract(level, u)?;
     let mut moments = sums.moments(level);
     for e in last.iter().filter(|e| e.value >= u) {
         weigh(&mut moments, e, level as i64, 1);

@@ -29,9 +29,9 @@
 //! - `admission`: what a window admits as it fills (thresholds, the
 //!   kernel's attention stops, room in a full buffer);
 //! - `finish`: a window's end, its cutoff, moments and result;
-//!   `closed_form`: the same from sums taken in one pass, without a level
-//!   filter, when the candidates reach the cutoff (for `subtract-next`
-//!   almost always, for the other rules most often); `last_row`: most of
+//!   `closed_form`: the same from sums taken in one pass, when the
+//!   candidates reach the cutoff (for `subtract-next` almost always, for
+//!   the other rules most often); `last_row`: most of
 //!   that done as the frame's last row begins;
 //! - `complement`: a `subtract-next` window keeping more than half its
 //!   pixels keeps the few below its cutoff instead, beside every pixel's
@@ -154,14 +154,18 @@ pub struct Engine<'c, 'm> {
     /// start of this row (`last_row`), `event_row` stopping there too:
     /// the last row, or the row in which the push holding the frame's last
     /// pixel starts, so that that push does not prepare them
-    /// (`set_prepare_row`); `u16::MAX`: never (a level filter, or pushes
-    /// of half a frame or more).
+    /// (`set_prepare_row`); `u16::MAX`: never (pushes of half a frame or
+    /// more).
     prepare_row: u16,
-    /// Windows may end in closed form (`closed_form`): `subtract-next` or
-    /// `threshold` without a level filter.
+    /// Windows may end in closed form (`closed_form`): `subtract-next`
+    /// without a level filter, or `threshold` (which subtracts no level,
+    /// so never filters one).
     closed_form: bool,
-    /// Likewise, for `subtract-next-distinct` or `subtract-mean`.
+    /// Likewise, for `subtract-next-distinct` or `subtract-mean` without a
+    /// level filter.
     level_closed_form: bool,
+    /// Likewise, for the subtracting rules with a level filter.
+    filtered_closed_form: bool,
     /// A window's hint is one above its seed's as it opens: for
     /// `subtract-next-distinct`, whose front then holds the values above
     /// the previous level, not its copies
@@ -266,16 +270,24 @@ impl<'c, 'm> Engine<'c, 'm> {
             next_to_open: 0,
             event_row: 0,
             prepare_row: u16::MAX,
-            closed_form: matches!(
-                config.selection.rule,
-                brightpix_protocol::SelectionRule::SubtractNext
-                    | brightpix_protocol::SelectionRule::Threshold
-            ) && config.selection.level_filter.is_none(),
+            closed_form: match config.selection.rule {
+                brightpix_protocol::SelectionRule::SubtractNext => {
+                    config.selection.level_filter.is_none()
+                }
+                brightpix_protocol::SelectionRule::Threshold => true,
+                _ => false,
+            },
             level_closed_form: matches!(
                 config.selection.rule,
                 brightpix_protocol::SelectionRule::SubtractNextDistinct
                     | brightpix_protocol::SelectionRule::SubtractMean { .. }
             ) && config.selection.level_filter.is_none(),
+            filtered_closed_form: matches!(
+                config.selection.rule,
+                brightpix_protocol::SelectionRule::SubtractNext
+                    | brightpix_protocol::SelectionRule::SubtractNextDistinct
+                    | brightpix_protocol::SelectionRule::SubtractMean { .. }
+            ) && config.selection.level_filter.is_some(),
             hint_above: config.selection.rule
                 == brightpix_protocol::SelectionRule::SubtractNextDistinct,
             complement: complement::applies(&config),
