@@ -72,13 +72,13 @@ const MOST_SMALLEST: usize = 8;
 /// and all of `last` (every one above `u`), with `v(N+1) >= u`. `v(N+1)`
 /// is `u` if at most N pixels are above it, else the `(above - N)`-th
 /// smallest above it. `level` gives the level to subtract from `v(N+1)`:
-/// `v(N+1)` itself, or the level filter's (SPEC.md §4). At `v` the moments
+/// `v(N+1)` itself, or (`FILTERED`) the level filter's (SPEC.md §4). At `v` the moments
 /// are the sums' closed form, less `before`'s pixels between `u` and `v`
 /// (summed with a negative weight), plus `last`'s above `v`; at another
 /// level, [`moments_at_level`]. `scratch` holds at least as many values as
 /// `before` and `last` together.
 #[inline(always)]
-pub(super) fn cutoff_and_moments(
+pub(super) fn cutoff_and_moments<const FILTERED: bool>(
     u: i32,
     sums: &SumsAbove,
     before: &[Entry],
@@ -103,7 +103,7 @@ pub(super) fn cutoff_and_moments(
         let v = smallest[m - 1].value;
         let l = level(v);
         if l != v {
-            return (v, moments_at_level(u, sums, before, last, v, l));
+            return (v, moments_at_level::<FILTERED>(u, sums, before, last, v, l));
         }
         let mut moments = sums.moments(v);
         for e in smallest[..m - 1].iter().filter(|e| e.value < v) {
@@ -127,7 +127,10 @@ pub(super) fn cutoff_and_moments(
         }
         *copy.select_nth_unstable(above - n - 1).1
     };
-    (v, moments_at_level(u, sums, before, last, v, level(v)))
+    (
+        v,
+        moments_at_level::<FILTERED>(u, sums, before, last, v, level(v)),
+    )
 }
 
 /// The moments of `p - l` over the pixels above `max(v, l)`, those of
@@ -136,7 +139,7 @@ pub(super) fn cutoff_and_moments(
 /// `before`'s pixels between `u` and `max(v, l)`, plus `last`'s above it;
 /// with `l = v`, as the ordinary end at `v(N+1)`.
 #[inline(always)]
-fn moments_at_level(
+fn moments_at_level<const FILTERED: bool>(
     u: i32,
     sums: &SumsAbove,
     before: &[Entry],
@@ -147,7 +150,12 @@ fn moments_at_level(
     let (c, l64) = (v.max(l), l as i64);
     let mut moments = sums.moments(l);
     if c > u {
-        for e in before.iter().filter(|e| e.value > u && e.value <= c) {
+        // A pixel at `l` weighs 0: without a filter, `v`'s copies, left
+        // out (they may be many); with one, weighed (a test less).
+        for e in before
+            .iter()
+            .filter(|e| e.value > u && e.value <= c && (FILTERED || e.value != l))
+        {
             weigh(&mut moments, e, l64, -1);
         }
     }
@@ -521,7 +529,7 @@ impl Engine<'_, '_> {
             let entries: &[Entry] = unsafe { window.entries() };
             let front = &entries[..window.front()];
             let sums = centroid::sums_above(front, window.hint);
-            Some(cutoff_and_moments(
+            Some(cutoff_and_moments::<FILTERED>(
                 window.hint,
                 &sums,
                 front,

@@ -619,7 +619,7 @@ impl Engine<'_, '_> {
         // SAFETY: the window's buffer (opened with it), no other reference
         // to it alive.
         let entries: &[Entry] = unsafe { window.entries() };
-        let (v, moments) = prepared_end(window, entries, self.memory.scratch, |v| v);
+        let (v, moments) = prepared_end::<false>(window, entries, self.memory.scratch, |v| v);
         self.emit(k, v, moments, sink);
     }
 
@@ -644,7 +644,7 @@ impl Engine<'_, '_> {
         let state = &mut memory.subapertures[window.index as usize].level;
         let end = match self.config.selection.rule {
             SelectionRule::SubtractNext => {
-                Some(prepared_end(window, entries, memory.scratch, |v| {
+                Some(prepared_end::<true>(window, entries, memory.scratch, |v| {
                     state.filter(v, gain_shift)
                 }))
             }
@@ -710,7 +710,7 @@ fn prepared_block(window: &OpenWindow, entries: &[Entry]) -> (i32, usize, SumsAb
 /// A prepared `subtract-next` window's `v(N+1)` and moments (see the
 /// module documentation), at the level `level` gives from `v(N+1)`.
 #[inline(always)]
-fn prepared_end(
+fn prepared_end<const FILTERED: bool>(
     window: &OpenWindow,
     entries: &[Entry],
     scratch: &mut [i32],
@@ -719,7 +719,7 @@ fn prepared_end(
     let (u, prepared_front, sums) = prepared_block(window, entries);
     let before = &entries[..prepared_front];
     let last = &entries[prepared_front..window.front()];
-    cutoff_and_moments(u, &sums, before, last, window.n as usize, scratch, level)
+    cutoff_and_moments::<FILTERED>(u, &sums, before, last, window.n as usize, scratch, level)
 }
 
 /// For a window prepared with `u = v(N)` (`threshold`,
