@@ -508,11 +508,7 @@ impl Engine<'_, '_> {
             return false;
         }
         // Called once `v(N+1)` is known, when nothing can fail any more.
-        let gain_shift = self
-            .config
-            .selection
-            .level_filter
-            .map_or(0, |f| f.gain_shift);
+        let gain_shift = self.gain_shift;
         let (subapertures, index) = (&mut *memory.subapertures, window.index as usize);
         let level = |v| {
             if FILTERED {
@@ -571,11 +567,7 @@ impl Engine<'_, '_> {
         // Two calls, so that without a filter the level is a closure with
         // nothing to carry (`distinct_cutoff_in_back` is out of line).
         let end = if FILTERED {
-            let gain_shift = self
-                .config
-                .selection
-                .level_filter
-                .map_or(0, |f| f.gain_shift);
+            let gain_shift = self.gain_shift;
             let state = &mut memory.subapertures[window.index as usize].level;
             level_rule_end(window, rule, memory.scratch, |l, cutoff| {
                 filtered_below(state, l, gain_shift, cutoff)

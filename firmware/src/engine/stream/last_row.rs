@@ -636,11 +636,7 @@ impl Engine<'_, '_> {
         // SAFETY: the window's buffer (opened with it), no other reference
         // to it alive.
         let entries: &[Entry] = unsafe { window.entries() };
-        let gain_shift = self
-            .config
-            .selection
-            .level_filter
-            .map_or(0, |f| f.gain_shift);
+        let gain_shift = self.gain_shift;
         let state = &mut memory.subapertures[window.index as usize].level;
         let end = match self.config.selection.rule {
             SelectionRule::SubtractNext => {

@@ -166,6 +166,8 @@ pub struct Engine<'c, 'm> {
     level_closed_form: bool,
     /// Likewise, for the subtracting rules with a level filter.
     filtered_closed_form: bool,
+    /// The level filter's gain shift (0 without one).
+    gain_shift: u8,
     /// A window's hint is one above its seed's as it opens: for
     /// `subtract-next-distinct`, whose front then holds the values above
     /// the previous level, not its copies
@@ -288,6 +290,7 @@ impl<'c, 'm> Engine<'c, 'm> {
                     | brightpix_protocol::SelectionRule::SubtractNextDistinct
                     | brightpix_protocol::SelectionRule::SubtractMean { .. }
             ) && config.selection.level_filter.is_some(),
+            gain_shift: config.selection.level_filter.map_or(0, |f| f.gain_shift),
             hint_above: config.selection.rule
                 == brightpix_protocol::SelectionRule::SubtractNextDistinct,
             complement: complement::applies(&config),
