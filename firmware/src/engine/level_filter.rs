@@ -17,6 +17,7 @@ impl LevelFilterState {
     pub const RESET: LevelFilterState = LevelFilterState { biased: 0 };
 
     /// Feeds this frame's instantaneous level; returns the level to subtract.
+    /// `gain_shift` is a validated configuration's, 1..=16.
     pub fn update(&mut self, level: Option<i32>, gain_shift: u8) -> Option<i32> {
         Some(self.filter(level?, gain_shift))
     }
@@ -31,7 +32,10 @@ impl LevelFilterState {
             target
         } else {
             let state = self.biased ^ BIAS;
-            state + ((target - state) >> gain_shift)
+            // `gain_shift` is 1..=16 (SPEC.md §4): below 32, which the
+            // mask tells the compiler (a 64-bit shift then needs no test
+            // for 32 or more on Cortex-M).
+            state + ((target - state) >> (gain_shift & 31))
         };
         self.biased = state ^ BIAS;
         (state >> LEVEL_FILTER_FRACTION_BITS) as i32
