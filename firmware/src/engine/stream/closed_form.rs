@@ -517,7 +517,8 @@ impl Engine<'_, '_> {
                 v
             }
         };
-        let end = if self.config.selection.rule == SelectionRule::Threshold {
+        // A filter never comes with `threshold` here (`filtered_closed_form`).
+        let end = if !FILTERED && self.config.selection.rule == SelectionRule::Threshold {
             threshold_end(window, memory.scratch)
         } else if front_reaches_cutoff(window) {
             // SAFETY: the window's buffer (opened with it), no other
