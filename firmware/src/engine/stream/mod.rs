@@ -136,11 +136,15 @@ pub struct Engine<'c, 'm> {
     /// processed (only then), the address of its first pixel: a rescan
     /// reads its rows there, so none is copied to the history ring.
     whole_frame: usize,
-    /// The rows of the history ring the current frame is copied to:
-    /// `history_rows`, or 0 while `whole_frame` is set. Derivable from the
-    /// two, kept so that a row tests one field (testing both measured 16.22
-    /// against 16.18 instructions a pixel on Cortex-M4).
-    ring_rows: usize,
+    /// `history_rows * width`: where the history ring ends.
+    history_end: usize,
+    /// Where the history ring the current frame is copied to ends
+    /// (`history_rows * width`), or 0 while `whole_frame` is set (or no
+    /// window selects). Derivable from the two, kept so that a row tests
+    /// one field (testing both measured 16.22 against 16.18 instructions a
+    /// pixel on Cortex-M4) and the ring's index wraps without a multiply
+    /// each row.
+    ring_end: usize,
     max_raw: u16,
     row: u16,
     column: u16,
@@ -264,8 +268,9 @@ impl<'c, 'm> Engine<'c, 'm> {
             stride: plan.stride,
             history_rows: plan.history_rows,
             history_row: 0,
+            history_end: plan.history_rows * config.camera.width as usize,
             whole_frame: 0,
-            ring_rows: 0,
+            ring_end: 0,
             max_raw: config.camera.max_raw(),
             row: 0,
             column: 0,
@@ -461,7 +466,7 @@ impl<'c, 'm> Engine<'c, 'm> {
                     let frame = width * self.config.camera.height as usize;
                     if pixels.len() >= frame {
                         self.whole_frame = pixels.as_ptr() as usize;
-                        self.ring_rows = 0;
+                        self.ring_end = 0;
                     }
                     self.open_windows_of_row();
                 }
@@ -479,7 +484,7 @@ impl<'c, 'm> Engine<'c, 'm> {
             }
             let take = pixels.len().min(width - self.column as usize);
             let (part, rest) = pixels.split_at(take);
-            if self.ring_rows > 0 {
+            if self.ring_end > 0 {
                 let at = self.history_row + self.column as usize;
                 // SAFETY: the ring holds `history_rows` camera rows (plan),
                 // `history_row` is one of them and the part lies in it.
@@ -510,7 +515,7 @@ impl<'c, 'm> Engine<'c, 'm> {
     /// kept for this frame.
     #[inline(always)]
     fn keep_row(&mut self, row: &[u16]) {
-        if self.ring_rows > 0 {
+        if self.ring_end > 0 {
             let at = self.history_row;
             // SAFETY: the ring holds `history_rows` camera rows (plan) and
             // `history_row` is the first pixel of one of them.
@@ -549,9 +554,9 @@ impl<'c, 'm> Engine<'c, 'm> {
             self.scan.gain_row += 2 * width;
         }
         self.position_row += 1 << 6;
-        if self.ring_rows > 0 {
+        if self.ring_end > 0 {
             self.history_row += width;
-            if self.history_row == self.history_rows * width {
+            if self.history_row == self.ring_end {
                 self.history_row = 0;
             }
         }
@@ -670,7 +675,7 @@ impl<'c, 'm> Engine<'c, 'm> {
         self.column = 0;
         self.history_row = 0;
         self.whole_frame = 0;
-        self.ring_rows = self.history_rows;
+        self.ring_end = self.history_end;
         let c = &self.config.calibration;
         self.bg_row = c.background.map_or(0, |b| b.as_ptr() as usize);
         self.scan.gain_row = c.gain.map_or(0, |g| g.as_ptr() as usize);
