@@ -103,10 +103,11 @@ impl Engine<'_, '_> {
             // field (so a new one fails to compile here until it is set): as
             // one struct literal the compiler built part of it on the stack
             // and copied it with a byte-wise `memcpy` call (~200
-            // instructions a window on Cortex-M4).
+            // instructions a window on Cortex-M4). The segment's two fields
+            // are `update_kernel_segment`'s, below.
             let OpenWindow {
-                segment_start,
-                segment_end,
+                segment_start: _,
+                segment_end: _,
                 lanes,
                 admit,
                 position_base,
@@ -140,8 +141,6 @@ impl Engine<'_, '_> {
                 bounds,
                 moments,
             } = &mut open[k];
-            *segment_start = 0;
-            *segment_end = 0;
             *lanes = 0;
             *admit = low;
             *position_base = 0u32
