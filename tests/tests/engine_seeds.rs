@@ -411,3 +411,31 @@ fn the_seed_margin_follows_the_cutoffs_moves() {
     }
     assert!(margin(&moving) > margin(&steady));
 }
+
+/// A jump of the cutoff beyond 2^25 units (beyond any calibrated value's
+/// range, SPEC.md §2, but an `i32` all the same) caps the spread at 2^29,
+/// so the margin at 1.5 x 2^25 less the knee plus the floor, without
+/// overflow (debug builds would panic), from either end of the `i32`s.
+#[test]
+fn the_seed_spread_is_capped_for_any_jump() {
+    use brightpix_firmware::engine::seed::Seed;
+    let capped = (1 << 25) + (1 << 24) - 48 + 18;
+    for (from, to) in [
+        (1 << 30, 0),
+        (-(1 << 30), 0),
+        (i32::MAX, 0),
+        (i32::MIN + 1, 0),
+        (0, 1 << 25),
+    ] {
+        let mut seed = Seed::RESET;
+        seed.observe(from, false);
+        seed.observe(to, false);
+        let (hint, low) = seed.thresholds();
+        assert_eq!((hint, hint - low), (to, capped), "{from} -> {to}");
+    }
+    // Beyond the cap the margin saturates at `i32::MIN`.
+    let mut seed = Seed::RESET;
+    seed.observe(i32::MAX, false);
+    seed.observe(i32::MIN + 1, true);
+    assert_eq!(seed.thresholds(), (i32::MIN + 1, i32::MIN));
+}
