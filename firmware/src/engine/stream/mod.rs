@@ -221,6 +221,10 @@ pub struct Engine<'c, 'm> {
     /// The address of the current row's first background value (0 without
     /// a map), and its packed row (`row << 6`).
     bg_row: usize,
+    /// What `bg_row` and `scan.gain_row` advance by each row: a row of the
+    /// map, 0 without one (so that a row adds, with no test).
+    bg_stride: usize,
+    gain_stride: usize,
     position_row: u32,
     frames: u32,
     needed: MemorySize,
@@ -326,6 +330,14 @@ impl<'c, 'm> Engine<'c, 'm> {
                 checked: CheckedKernels::for_max_raw(config.camera.max_raw()),
             },
             bg_row: 0,
+            bg_stride: config
+                .calibration
+                .background
+                .map_or(0, |_| 4 * config.camera.width as usize),
+            gain_stride: config
+                .calibration
+                .gain
+                .map_or(0, |_| 2 * config.camera.width as usize),
             position_row: 0,
             frames: 0,
             needed: plan.needed,
@@ -547,12 +559,8 @@ impl<'c, 'm> Engine<'c, 'm> {
         self.column = 0;
         self.row += 1;
         let width = self.config.camera.width as usize;
-        if self.bg_row != 0 {
-            self.bg_row += 4 * width;
-        }
-        if self.scan.gain_row != 0 {
-            self.scan.gain_row += 2 * width;
-        }
+        self.bg_row += self.bg_stride;
+        self.scan.gain_row += self.gain_stride;
         self.position_row += 1 << 6;
         if self.ring_end > 0 {
             self.history_row += width;
