@@ -272,6 +272,49 @@ fn every_seed_path_agrees_with_the_reference() {
     assert!(total.windows > 0);
 }
 
+/// A rescan calibrates again only the pixels whose raw value can reach its
+/// bound (`Calibrator::each_in_range`, one loop for each combination of
+/// calibration steps): with every combination of background map, gain map
+/// and fixed threshold, rescanned windows agree with the reference, rows
+/// pushed one at a time and frames whole.
+#[test]
+fn rescans_agree_with_the_reference_under_every_calibration() {
+    for background in [false, true] {
+        for gain in [false, true] {
+            for threshold in [false, true] {
+                let mut rescans = 0;
+                for rule in rules() {
+                    for n in [5, 20] {
+                        let mut c = case(grid(), rule, n, false);
+                        let pixels = c.camera.pixel_count();
+                        if !background {
+                            c.background = None;
+                        }
+                        if gain {
+                            // Gains of 0.75 to 1.25, varying from pixel to
+                            // pixel.
+                            c.gain =
+                                Some((0..pixels).map(|k| 3072 + (k * 37 % 2049) as u16).collect());
+                        }
+                        if threshold {
+                            // Two counts above the background, in the
+                            // noise: some pixels zeroed near the cutoffs.
+                            c.threshold = Some(if background { 2 * 16 } else { 42 * 16 });
+                        }
+                        for chunk in [None, Some(usize::MAX)] {
+                            rescans += run(&c, chunk, 3 + n as u64).rescans;
+                        }
+                    }
+                }
+                assert!(
+                    rescans > 0,
+                    "no window was rescanned (background {background}, gain {gain}, threshold {threshold})"
+                );
+            }
+        }
+    }
+}
+
 /// Every frame of a sequence in one call (a frame whole from its first
 /// pixel on, then the next): the rescans of each read that frame's rows in
 /// the caller's slice, not the rows of another.

@@ -1,11 +1,11 @@
 //! Stage 1: calibration of raw pixels (SPEC.md §2).
 //!
-//! Two forms of the same arithmetic: [`Calibrator::calibrate`] for a run of
-//! consecutive pixels (a branch-free pass, one loop per combination of maps),
-//! and [`value`] for one pixel, which the selection's hot loop calls on the
-//! few pixels that pass the pre-filter. [`raw_floor`] turns a calibrated
-//! threshold into the smallest raw value that can reach it in a window, so
-//! that the pre-filter can reject raw pixels without calibrating them.
+//! One arithmetic, [`value`] for one pixel (and [`value_in_run`] for the
+//! `k`-th of a run), which the engine applies only to the pixels that pass
+//! its pre-filter: [`raw_floor`] turns a calibrated threshold into the
+//! smallest raw value that can reach it in a window, so that raw pixels
+//! below it are rejected uncalibrated (by the row kernel as pixels arrive,
+//! by [`Calibrator::each_in_range`] when a window is read again).
 
 use brightpix_protocol::{Calibration, Config, SubapertureWindow, GAIN_FRACTION_BITS};
 
@@ -20,81 +20,68 @@ impl<'a> Calibrator<'a> {
         Calibrator { calibration }
     }
 
-    /// Calibrates `raw` (pixels `first_pixel ..` of the frame, row-major
-    /// index) into `out[..raw.len()]`, in 1/16 count.
-    ///
-    /// Not inlined: one copy of the eight loops serves all rules (inlined
-    /// into each rule's routing loop they made the engine's Cortex-M7 code
-    /// about 6 times larger), and the engine calls it once per block of a
-    /// row, not per window.
-    #[inline(never)]
-    pub fn calibrate(&self, raw: &[u16], first_pixel: usize, out: &mut [i32]) {
+    /// [`raw_floor`] of `threshold` over a window with `bounds`.
+    #[inline(always)]
+    pub fn raw_floor(&self, bounds: WindowBounds, threshold: i32) -> u32 {
+        raw_floor(&self.calibration, bounds, threshold)
+    }
+
+    /// Calls `keep(k, p)`, in order, for each pixel `k` of `raw` (pixels
+    /// `first_pixel ..` of the frame, row-major index, inside the camera)
+    /// whose calibrated value `p` lies in `[low, below)`, until `keep`
+    /// returns `false` (then returns `false`). Raw values under `floor`, at
+    /// most [`raw_floor`](Self::raw_floor) of `low` for these pixels, are
+    /// skipped uncalibrated: a rescan reads a window again for the pixels
+    /// its seed left out, and much of a window lies far below them.
+    #[inline(always)]
+    pub fn each_in_range(
+        &self,
+        raw: &[u16],
+        first_pixel: usize,
+        floor: u32,
+        range: (i32, i32),
+        keep: impl FnMut(usize, i32) -> bool,
+    ) -> bool {
         let c = &self.calibration;
+        let args = (raw, first_pixel, floor, range);
         match (c.background, c.gain, c.threshold.is_some()) {
-            (None, None, false) => pass::<false, false, false>(c, raw, first_pixel, out),
-            (None, None, true) => pass::<false, false, true>(c, raw, first_pixel, out),
-            (Some(_), None, false) => pass::<true, false, false>(c, raw, first_pixel, out),
-            (Some(_), None, true) => pass::<true, false, true>(c, raw, first_pixel, out),
-            (None, Some(_), false) => pass::<false, true, false>(c, raw, first_pixel, out),
-            (None, Some(_), true) => pass::<false, true, true>(c, raw, first_pixel, out),
-            (Some(_), Some(_), false) => pass::<true, true, false>(c, raw, first_pixel, out),
-            (Some(_), Some(_), true) => pass::<true, true, true>(c, raw, first_pixel, out),
+            (None, None, false) => each_in_range::<With<false, false, false>>(c, args, keep),
+            (None, None, true) => each_in_range::<With<false, false, true>>(c, args, keep),
+            (Some(_), None, false) => each_in_range::<With<true, false, false>>(c, args, keep),
+            (Some(_), None, true) => each_in_range::<With<true, false, true>>(c, args, keep),
+            (None, Some(_), false) => each_in_range::<With<false, true, false>>(c, args, keep),
+            (None, Some(_), true) => each_in_range::<With<false, true, true>>(c, args, keep),
+            (Some(_), Some(_), false) => each_in_range::<With<true, true, false>>(c, args, keep),
+            (Some(_), Some(_), true) => each_in_range::<With<true, true, true>>(c, args, keep),
         }
     }
 }
 
-/// One pass doing the steps selected by the flags (which must match the
-/// maps present in `c`), written as zipped iterators over exactly `n`
-/// entries of each slice, so that the loop walks pointers without bounds
-/// checks.
+/// [`Calibrator::each_in_range`] with the steps `S`, which are those `c`
+/// has: one loop for each combination, without the maps' tests (a value
+/// that tested them cost a rescan ~25 instructions a pixel that passed
+/// `floor` on Cortex-M4).
 #[inline(always)]
-fn pass<const BACKGROUND: bool, const GAIN: bool, const THRESHOLD: bool>(
+fn each_in_range<S: Steps>(
     c: &Calibration<'_>,
-    raw: &[u16],
-    first_pixel: usize,
-    out: &mut [i32],
-) {
-    let n = raw.len();
-    let out = &mut out[..n];
-    let threshold = c.threshold.unwrap_or(i32::MIN);
-    // 1. d = 16 r - B   (-2^20 <= d < 2^21)
-    let shifted = raw.iter().map(|&r| (r as i32) << 4);
-    // 2. |d * G| < 2^37: the product needs 64 bits; the shifted result fits 26.
-    let gained = |d: i32, g: u16| ((d as i64 * g as i64) >> 12) as i32;
-    match (c.background, c.gain) {
-        (Some(background), Some(gain)) if BACKGROUND && GAIN => {
-            let maps = background[first_pixel..][..n]
-                .iter()
-                .zip(&gain[first_pixel..][..n]);
-            let d = shifted.zip(maps).map(|(d, (&b, &g))| gained(d - b, g));
-            store::<THRESHOLD>(out, d, threshold)
+    (raw, first_pixel, floor, (low, below)): (&[u16], usize, u32, (i32, i32)),
+    mut keep: impl FnMut(usize, i32) -> bool,
+) -> bool {
+    // SAFETY: `S` holds `c`'s steps (the caller's match), `c` is the
+    // engine's validated configuration's and the run lies in the camera
+    // (the caller's contract).
+    let (background, gain, threshold) = unsafe { run_maps::<S>(c, first_pixel, raw.len()) };
+    for (k, &r) in raw.iter().enumerate() {
+        if (r as u32) < floor {
+            continue;
         }
-        (Some(background), _) if BACKGROUND => {
-            let d = shifted
-                .zip(&background[first_pixel..][..n])
-                .map(|(d, &b)| d - b);
-            store::<THRESHOLD>(out, d, threshold)
+        // SAFETY: `k < raw.len()`, the length of the maps' runs.
+        let p = unsafe { value_in_run_unchecked::<S>(r, k, background, gain, threshold) };
+        if p >= low && p < below && !keep(k, p) {
+            return false;
         }
-        (_, Some(gain)) if GAIN => {
-            let d = shifted
-                .zip(&gain[first_pixel..][..n])
-                .map(|(d, &g)| gained(d, g));
-            store::<THRESHOLD>(out, d, threshold)
-        }
-        _ => store::<THRESHOLD>(out, shifted, threshold),
     }
-}
-
-/// 3. threshold, and the store.
-#[inline(always)]
-fn store<const THRESHOLD: bool>(
-    out: &mut [i32],
-    values: impl Iterator<Item = i32>,
-    threshold: i32,
-) {
-    for (o, d) in out.iter_mut().zip(values) {
-        *o = if THRESHOLD && d < threshold { 0 } else { d };
-    }
+    true
 }
 
 /// Which calibration steps a configuration has, as types, so that each

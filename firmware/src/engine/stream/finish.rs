@@ -151,7 +151,7 @@ impl Engine<'_, '_> {
                         let lower = cut_below_low(
                             &rows,
                             window,
-                            (&self.calibrator, &mut self.calibrated),
+                            &self.calibrator,
                             (entries, &rule, bound),
                             memory.rescan,
                             memory.scratch,
@@ -169,13 +169,8 @@ impl Engine<'_, '_> {
                     // Else the pixels at or above `bound`, cut as the
                     // candidates of a window raised to it, which holds if it
                     // is `Ok`; else every pixel, calibrated again.
-                    let (kept, at_bound) = rows.candidates(
-                        window,
-                        &self.calibrator,
-                        &mut self.calibrated,
-                        bound,
-                        memory.rescan,
-                    );
+                    let (kept, at_bound) =
+                        rows.candidates(window, &self.calibrator, bound, memory.rescan);
                     let mut tiers = Tiers {
                         front: &memory.rescan[..kept],
                         front_at_hint: at_bound,
@@ -190,13 +185,7 @@ impl Engine<'_, '_> {
                     let (cut, kept) = match select::cut(&rule, &mut tiers) {
                         Ok(cut) => (cut, kept),
                         Err(_) => {
-                            rows.candidates(
-                                window,
-                                &self.calibrator,
-                                &mut self.calibrated,
-                                i32::MIN,
-                                memory.rescan,
-                            );
+                            rows.candidates(window, &self.calibrator, i32::MIN, memory.rescan);
                             let mut tiers = Tiers {
                                 front: &memory.rescan[..pixels],
                                 front_at_hint: 0,
@@ -241,7 +230,7 @@ impl Engine<'_, '_> {
 fn cut_below_low(
     rows: &WindowRows<'_>,
     window: &OpenWindow,
-    (calibrator, row): (&Calibrator<'_>, &mut [i32]),
+    calibrator: &Calibrator<'_>,
     (entries, rule, bound): (&[Entry], &WindowRule, i32),
     rescan: &mut [Entry],
     scratch: &mut [i32],
@@ -250,14 +239,7 @@ fn cut_below_low(
     rescan[..back].copy_from_slice(&entries[capacity - back..]);
     let range = (bound, window.low);
     let rows_all = window.height as usize;
-    let added = rows.between(
-        window,
-        calibrator,
-        row,
-        range,
-        rows_all,
-        &mut rescan[back..],
-    )?;
+    let added = rows.between(window, calibrator, range, rows_all, &mut rescan[back..])?;
     let mut tiers = Tiers {
         front: &entries[..front],
         front_at_hint: window.at_hint,
@@ -313,16 +295,10 @@ impl<'h> WindowRows<'h> {
         }
     }
 
-    /// Row `j` of `window` (one the frame has delivered), calibrated into
-    /// `row`.
+    /// Row `j` of `window` (one the frame has delivered), raw, and the
+    /// row-major index of its first pixel.
     #[inline(always)]
-    fn calibrated<'r>(
-        &self,
-        window: &OpenWindow,
-        calibrator: &Calibrator<'_>,
-        row: &'r mut [i32],
-        j: usize,
-    ) -> &'r [i32] {
+    fn raw(&self, window: &OpenWindow, j: usize) -> (&[u16], usize) {
         let (x, w) = (window.x as usize, window.width as usize);
         let y = window.y as usize + j;
         let pixel = y * self.width + x;
@@ -334,71 +310,60 @@ impl<'h> WindowRows<'h> {
             let at = (y % self.history_rows) * self.width + x;
             &self.history[at..at + w]
         };
-        let row = &mut row[..w];
-        calibrator.calibrate(raw, pixel, row);
-        row
+        (raw, pixel)
     }
 
     /// The window's pixels in `[bound, below)` of its first `rows` rows,
-    /// calibrated, into the first entries of `out` (with their positions);
-    /// their number, or `None` if `out` cannot hold them.
+    /// calibrated, into the first entries of `out` (with their positions),
+    /// row after row; their number, or `None` if `out` cannot hold them.
     pub(super) fn between(
         &self,
         window: &OpenWindow,
         calibrator: &Calibrator<'_>,
-        row: &mut [i32],
-        (bound, below): (i32, i32),
+        range: (i32, i32),
         rows: usize,
         out: &mut [Entry],
     ) -> Option<usize> {
+        let floor = calibrator.raw_floor(window.bounds, range.0);
         let mut kept = 0;
         for j in 0..rows {
-            for (i, &p) in self
-                .calibrated(window, calibrator, row, j)
-                .iter()
-                .enumerate()
-            {
-                if p >= bound && p < below {
-                    if kept == out.len() {
-                        return None;
-                    }
-                    out[kept] = Entry {
-                        value: p,
-                        position: pack(i as u16, j as u16) as u32,
-                    };
-                    kept += 1;
-                }
+            let (raw, pixel) = self.raw(window, j);
+            let room = calibrator.each_in_range(raw, pixel, floor, range, |i, p| {
+                let Some(slot) = out.get_mut(kept) else {
+                    return false;
+                };
+                *slot = Entry {
+                    value: p,
+                    position: pack(i as u16, j as u16) as u32,
+                };
+                kept += 1;
+                true
+            });
+            if !room {
+                return None;
             }
         }
         Some(kept)
     }
 
     /// The window's pixels at or above `bound`, calibrated, into the first
-    /// entries of `out` (with their positions), row after row; their number
-    /// and how many equal `bound`.
+    /// entries of `out` (which holds a whole window), with their positions,
+    /// row after row; their number and how many equal `bound`.
     fn candidates(
         &self,
         window: &OpenWindow,
         calibrator: &Calibrator<'_>,
-        row: &mut [i32],
         bound: i32,
         out: &mut [Entry],
     ) -> (usize, u16) {
-        let (mut kept, mut at_bound) = (0, 0u16);
-        for j in 0..window.height as usize {
-            let row = self.calibrated(window, calibrator, row, j);
-            for (i, &p) in row.iter().enumerate() {
-                if p >= bound {
-                    out[kept] = Entry {
-                        value: p,
-                        position: pack(i as u16, j as u16) as u32,
-                    };
-                    kept += 1;
-                    at_bound += (p == bound) as u16;
-                }
-            }
-        }
-        (kept, at_bound)
+        // Calibrated values are below 2^26 in magnitude, so below
+        // `i32::MAX`. `out` holds the largest window (`plan`): never `None`.
+        let range = (bound, i32::MAX);
+        let kept = self
+            .between(window, calibrator, range, window.height as usize, out)
+            .unwrap_or(0);
+        let at_bound = out[..kept].iter().filter(|e| e.value == bound).count();
+        (kept, at_bound as u16)
     }
 }
 

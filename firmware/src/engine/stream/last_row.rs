@@ -238,14 +238,7 @@ impl Engine<'_, '_> {
         let most = most.min(memory.rescan.len());
         let out = &mut memory.rescan[..most];
         let calibrator = &self.calibrator;
-        let Some(added) = rows.between(
-            window,
-            calibrator,
-            &mut self.calibrated,
-            range,
-            rows_so_far,
-            out,
-        ) else {
+        let Some(added) = rows.between(window, calibrator, range, rows_so_far, out) else {
             return false;
         };
         self.stats.rescans = self.stats.rescans.wrapping_add(1);

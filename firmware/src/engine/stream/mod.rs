@@ -44,7 +44,7 @@ use super::plan::plan;
 use super::prefilter;
 use super::scan::{CheckedKernels, RowScan};
 use super::window::SubapertureState;
-use brightpix_protocol::{Config, ConfigError, MAX_WINDOW_SIDE};
+use brightpix_protocol::{Config, ConfigError};
 
 mod admission;
 mod closed_form;
@@ -229,8 +229,6 @@ pub struct Engine<'c, 'm> {
     frames: u32,
     needed: MemorySize,
     stats: EngineStats,
-    /// Calibrated values of one segment of a window without selection.
-    calibrated: [i32; MAX_WINDOW_SIDE as usize],
 }
 
 impl<'c, 'm> Engine<'c, 'm> {
@@ -342,7 +340,6 @@ impl<'c, 'm> Engine<'c, 'm> {
             frames: 0,
             needed: plan.needed,
             stats: EngineStats::default(),
-            calibrated: [0; MAX_WINDOW_SIDE as usize],
         };
         engine.start_frame();
         Ok(engine)
