@@ -1,8 +1,9 @@
 //! Stage 1: calibration of raw pixels (SPEC.md §2).
 //!
-//! One arithmetic, [`value`] for one pixel (and [`value_in_run`] for the
-//! `k`-th of a run), which the engine applies only to the pixels that pass
-//! its pre-filter: [`raw_floor`] turns a calibrated threshold into the
+//! One arithmetic, [`value_in_run`] (the `k`-th pixel of a run, with the
+//! run's slices of the maps; [`value_in_run_unchecked`] for the hot
+//! loops), which the engine applies only to the pixels that pass its
+//! pre-filter: [`raw_floor`] turns a calibrated threshold into the
 //! smallest raw value that can reach it in a window, so that raw pixels
 //! below it are rejected uncalibrated (by the row kernel as pixels arrive,
 //! by [`Calibrator::each_in_range`] when a window is read again).
@@ -99,31 +100,6 @@ impl<const B: bool, const G: bool, const T: bool> Steps for With<B, G, T> {
     const BACKGROUND: bool = B;
     const GAIN: bool = G;
     const THRESHOLD: bool = T;
-}
-
-/// The calibrated value of raw pixel `r` at row-major index `pixel`
-/// (SPEC.md §2). The steps in `S` must be those `c` has.
-#[inline(always)]
-pub fn value<S: Steps>(c: &Calibration<'_>, r: u16, pixel: usize) -> i32 {
-    let mut d = (r as i32) << 4;
-    if S::BACKGROUND {
-        if let Some(background) = c.background {
-            d -= background[pixel];
-        }
-    }
-    if S::GAIN {
-        if let Some(gain) = c.gain {
-            d = ((d as i64 * gain[pixel] as i64) >> GAIN_FRACTION_BITS) as i32;
-        }
-    }
-    if S::THRESHOLD {
-        if let Some(threshold) = c.threshold {
-            if d < threshold {
-                d = 0;
-            }
-        }
-    }
-    d
 }
 
 /// The calibrated value of raw pixel `r`, the `k`-th of a run whose maps
