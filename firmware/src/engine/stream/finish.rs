@@ -168,23 +168,30 @@ impl Engine<'_, '_> {
                     }
                     // Else the pixels at or above `bound`, cut as the
                     // candidates of a window raised to it, which holds if it
-                    // is `Ok`; else every pixel, calibrated again.
-                    let (kept, at_bound) =
-                        rows.candidates(window, &self.calibrator, bound, memory.rescan);
-                    let mut tiers = Tiers {
-                        front: &memory.rescan[..kept],
-                        front_at_hint: at_bound,
-                        hint: bound,
-                        hint_ties: 0,
-                        back: &[],
-                        low: bound,
-                        low_ties: 0,
-                        complete: kept == pixels,
-                        scratch: memory.scratch,
+                    // is `Ok`; else every pixel, calibrated again. A window
+                    // held whole was just cut at `bound` with those very
+                    // pixels (and fell short): straight to every pixel.
+                    let at_bound = if held_whole {
+                        None
+                    } else {
+                        let (kept, at_bound) =
+                            rows.candidates(window, &self.calibrator, bound, memory.rescan);
+                        let mut tiers = Tiers {
+                            front: &memory.rescan[..kept],
+                            front_at_hint: at_bound,
+                            hint: bound,
+                            hint_ties: 0,
+                            back: &[],
+                            low: bound,
+                            low_ties: 0,
+                            complete: kept == pixels,
+                            scratch: memory.scratch,
+                        };
+                        select::cut(&rule, &mut tiers).ok().map(|cut| (cut, kept))
                     };
-                    let (cut, kept) = match select::cut(&rule, &mut tiers) {
-                        Ok(cut) => (cut, kept),
-                        Err(_) => {
+                    let (cut, kept) = match at_bound {
+                        Some(cut) => cut,
+                        None => {
                             rows.candidates(window, &self.calibrator, i32::MIN, memory.rescan);
                             let mut tiers = Tiers {
                                 front: &memory.rescan[..pixels],
