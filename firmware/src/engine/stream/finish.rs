@@ -171,7 +171,7 @@ impl Engine<'_, '_> {
                     // is `Ok`; else every pixel, calibrated again. A window
                     // held whole was just cut at `bound` with those very
                     // pixels (and fell short): straight to every pixel.
-                    let at_bound = if held_whole {
+                    let cut_at_bound = if held_whole {
                         None
                     } else {
                         let (kept, at_bound) =
@@ -189,7 +189,7 @@ impl Engine<'_, '_> {
                         };
                         select::cut(&rule, &mut tiers).ok().map(|cut| (cut, kept))
                     };
-                    let (cut, kept) = match at_bound {
+                    let (cut, kept) = match cut_at_bound {
                         Some(cut) => cut,
                         None => {
                             rows.candidates(window, &self.calibrator, i32::MIN, memory.rescan);
