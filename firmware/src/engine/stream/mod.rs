@@ -222,7 +222,7 @@ pub struct Engine<'c, 'm> {
     /// a map), and its packed row (`row << 6`).
     bg_row: usize,
     /// What `bg_row` and `scan.gain_row` advance by each row: a row of the
-    /// map, 0 without one (so that a row adds, with no test).
+    /// map in bytes, 0 without one (so that a row adds, with no test).
     bg_stride: usize,
     gain_stride: usize,
     position_row: u32,
@@ -331,11 +331,11 @@ impl<'c, 'm> Engine<'c, 'm> {
             bg_stride: config
                 .calibration
                 .background
-                .map_or(0, |_| 4 * config.camera.width as usize),
+                .map_or(0, |_| size_of::<i32>() * config.camera.width as usize),
             gain_stride: config
                 .calibration
                 .gain
-                .map_or(0, |_| 2 * config.camera.width as usize),
+                .map_or(0, |_| size_of::<u16>() * config.camera.width as usize),
             position_row: 0,
             frames: 0,
             needed: plan.needed,
