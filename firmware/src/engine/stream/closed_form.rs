@@ -51,7 +51,7 @@ use brightpix_protocol::SelectionRule;
 /// Below this many front entries the coordinate sums of the pixels above
 /// the hint (each coordinate below 64) fit 16 bits each, packed in one
 /// word ([`SumsAbove`]).
-const MOST_FRONT: usize = 1024;
+pub(super) const MOST_FRONT: usize = 1024;
 
 /// A front longer than N by more than this ends the ordinary way: the
 /// cutoff may then lie deep among the values above the hint, and the
@@ -449,7 +449,7 @@ fn distinct_cutoff_in_back(
 /// candidates below `v(N)`: `below` (any order; permuted), then `copies`
 /// copies of `tie`, below all of them. `None` if they fall short.
 #[inline(always)]
-fn level_from_below(
+pub(super) fn level_from_below(
     rule: SelectionRule,
     below: &mut [i32],
     tie: i32,

@@ -4,14 +4,15 @@
 //! filter and seed updated, the moments and the sub-aperture's result.
 
 use super::admission::settle_at_hint;
+use super::closed_form::{filtered_below, level_from_below, MOST_FRONT};
 use super::complement::COMPLEMENT;
 use super::last_row::PREPARED;
 use super::{Engine, OutputSink};
 use crate::engine::calibrate::Calibrator;
-use crate::engine::centroid::Moments;
+use crate::engine::centroid::{self, Moments};
 use crate::engine::select::{self, pack, Cut, Entry, Tiers, WindowRule};
 use crate::engine::window::{OpenWindow, SubapertureState};
-use brightpix_protocol::Config;
+use brightpix_protocol::{Config, SelectionRule};
 
 impl Engine<'_, '_> {
     /// A window's last pixel has arrived: its result, and what it leaves for
@@ -147,6 +148,23 @@ impl Engine<'_, '_> {
                         && !window.strict
                         && window.hint_ties.count == 0
                         && window.low_ties.count == 0;
+                    if held_whole
+                        && matches!(
+                            rule.rule,
+                            SelectionRule::SubtractNextDistinct
+                                | SelectionRule::SubtractMean { .. }
+                        )
+                    {
+                        let filter = filter.map(|f| f.gain_shift);
+                        let end = (entries, &rule, bound, filter);
+                        let scratch = &mut *memory.scratch;
+                        let calibrator = &self.calibrator;
+                        if let Some(moments) =
+                            level_below_low(&rows, window, calibrator, end, scratch, state)
+                        {
+                            break 'rescan moments;
+                        }
+                    }
                     if held_whole {
                         let lower = cut_below_low(
                             &rows,
@@ -262,6 +280,85 @@ fn cut_below_low(
     Some((cut, back + added))
 }
 
+/// The end of a `subtract-next-distinct` or `subtract-mean` window held
+/// whole (every pixel at or above `low` an entry, no ties) whose cut fell
+/// short with N or more entries: no entry lies below `v(N)` (it would have
+/// set the level), so `v(N)` is the smallest entry, every entry is kept,
+/// and the level comes from the pixels below `low` alone. Those in
+/// `[bound, low)` are read again, values only, into `scratch`; if they set
+/// the level (`level_from_below`), the moments are the entries' sums at it
+/// in closed form, without the selection and the pass over what a cut
+/// keeps. With a level filter (`filter`: its gain shift) the filtered
+/// level must lie below `v(N)` (`filtered_below`). The seed and the filter
+/// told, the moments; `None` (the general rescan, `state` as it was) if
+/// N or more entries lie above the smallest, the pixels read do not set
+/// the level or the filtered level is not below `v(N)`. Every rescan of
+/// these rules on the CANARY bench is of this kind: the level fell below
+/// `low` while `v(N)` did not.
+#[cold]
+#[inline(never)]
+fn level_below_low(
+    rows: &WindowRows<'_>,
+    window: &OpenWindow,
+    calibrator: &Calibrator<'_>,
+    (entries, rule, bound, filter): (&[Entry], &WindowRule, i32, Option<u8>),
+    scratch: &mut [i32],
+    state: &mut SubapertureState,
+) -> Option<Moments> {
+    let (front, back, capacity) = (window.front(), window.back(), window.capacity as usize);
+    let (front, back) = (&entries[..front], &entries[capacity - back..capacity]);
+    let held = front.len() + back.len();
+    // Fewer than 1024 entries, for the packed coordinate sums (`SumsAbove`).
+    if held < rule.n as usize || held >= MOST_FRONT {
+        return None;
+    }
+    // `v(N)` is the smallest entry, in the back tier if it holds any (the
+    // front's values are at or above the hint, the back's below it), if
+    // fewer than N entries are above it; else the cut would have held.
+    let lowest = if back.is_empty() { front } else { back };
+    let (mut v, mut copies) = (i32::MAX, 0);
+    for e in lowest {
+        if e.value < v {
+            (v, copies) = (e.value, 0);
+        }
+        copies += (e.value == v) as usize;
+    }
+    if held - copies >= rule.n as usize {
+        return None;
+    }
+    let mut found = 0;
+    let range = (bound, window.low);
+    let all_rows = window.height as usize;
+    let room = rows.each_between(window, calibrator, range, all_rows, |_, _, p| {
+        let Some(slot) = scratch.get_mut(found) else {
+            return false;
+        };
+        *slot = p;
+        found += 1;
+        true
+    });
+    if !room {
+        return None;
+    }
+    let (cutoff, l) = level_from_below(rule.rule, &mut scratch[..found], v, 0)?;
+    let l = match filter {
+        Some(gain_shift) => filtered_below(&mut state.level, l, gain_shift, v)?,
+        None => l,
+    };
+    state.seed.observe(cutoff, true);
+    // Every entry weighs `p - l` (each is above `i32::MIN`).
+    let (f, b) = (
+        centroid::sums_above(front, i32::MIN).moments(l),
+        centroid::sums_above(back, i32::MIN).moments(l),
+    );
+    let moments = Moments {
+        sum_w: f.sum_w + b.sum_w,
+        sum_wi: f.sum_wi + b.sum_wi,
+        sum_wj: f.sum_wj + b.sum_wj,
+    };
+    Some(moments)
+}
+
 /// Where a rescan looks first: as far below `low` as the seed's margin
 /// (`hint - low`), and one more (a window whose seed was too high usually
 /// missed its cutoff by less than that). Further down, the first attempt
@@ -320,6 +417,25 @@ impl<'h> WindowRows<'h> {
         (raw, pixel)
     }
 
+    /// `keep(i, j, p)` for the window's pixels in `[bound, below)` of its
+    /// first `rows` rows, calibrated, row after row; `false` as soon as
+    /// `keep` returns `false`.
+    #[inline(always)]
+    fn each_between(
+        &self,
+        window: &OpenWindow,
+        calibrator: &Calibrator<'_>,
+        range: (i32, i32),
+        rows: usize,
+        mut keep: impl FnMut(usize, usize, i32) -> bool,
+    ) -> bool {
+        let floor = calibrator.raw_floor(window.bounds, range.0);
+        (0..rows).all(|j| {
+            let (raw, pixel) = self.raw(window, j);
+            calibrator.each_in_range(raw, pixel, floor, range, |i, p| keep(i, j, p))
+        })
+    }
+
     /// The window's pixels in `[bound, below)` of its first `rows` rows,
     /// calibrated, into the first entries of `out` (with their positions),
     /// row after row; their number, or `None` if `out` cannot hold them.
@@ -331,26 +447,19 @@ impl<'h> WindowRows<'h> {
         rows: usize,
         out: &mut [Entry],
     ) -> Option<usize> {
-        let floor = calibrator.raw_floor(window.bounds, range.0);
         let mut kept = 0;
-        for j in 0..rows {
-            let (raw, pixel) = self.raw(window, j);
-            let room = calibrator.each_in_range(raw, pixel, floor, range, |i, p| {
-                let Some(slot) = out.get_mut(kept) else {
-                    return false;
-                };
-                *slot = Entry {
-                    value: p,
-                    position: pack(i as u16, j as u16) as u32,
-                };
-                kept += 1;
-                true
-            });
-            if !room {
-                return None;
-            }
-        }
-        Some(kept)
+        let room = self.each_between(window, calibrator, range, rows, |i, j, p| {
+            let Some(slot) = out.get_mut(kept) else {
+                return false;
+            };
+            *slot = Entry {
+                value: p,
+                position: pack(i as u16, j as u16) as u32,
+            };
+            kept += 1;
+            true
+        });
+        room.then_some(kept)
     }
 
     /// The window's pixels at or above `bound`, calibrated, into the first
