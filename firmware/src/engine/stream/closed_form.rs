@@ -295,8 +295,9 @@ fn threshold_end(window: &mut OpenWindow, scratch: &mut [i32]) -> Option<(i32, M
 /// pixel weighs: the sums of the kept front pixels in closed form, in one
 /// pass ([`centroid::sums_above`] at `v(N) - 1`).
 /// - With `A >= N` front values above the hint, `v(N)` is the
-///   `(A - N + 1)`-th smallest of them: one pass keeping that many
-///   smallest (up to 8), else a selection on a copy of them. The level
+///   `(A - N + 1)`-th smallest of them: one pass keeping the two smallest
+///   values and their copies ([`nth_of_two_lowest`]), else one keeping
+///   that many smallest (up to 8), else a selection on a copy. The level
 ///   comes from those below `v(N)` and, below them, the hint's copies (in
 ///   the front and the tie bucket).
 /// - With fewer, but `N` or more with the hint's copies in the front,
@@ -361,8 +362,11 @@ fn level_rule_end(
         return Some((cutoff, sums.moments(level(l, hint)?)));
     }
     let m = above - n + 1;
-    let mut few;
-    let (v, below) = if m <= MOST_SMALLEST {
+    let (mut few, mut lowest);
+    let (v, below) = if let Some((v, lower, copies)) = nth_of_two_lowest(front, hint, m) {
+        lowest = [lower; 16];
+        (v, &mut lowest[..copies.min(16)])
+    } else if m <= MOST_SMALLEST {
         few = select::extremes::<false, i32>(
             front.iter().map(|e| e.value).filter(|&p| p > hint),
             |p| p,
@@ -390,6 +394,44 @@ fn level_rule_end(
     let level = level(l, v)?;
     // `v - 1`: `v` is above the hint.
     Some((cutoff, centroid::sums_above(front, v - 1).moments(level)))
+}
+
+/// The `m`-th smallest of the front's values above `hint` when it is one
+/// of the two smallest values there, with the smallest and its number of
+/// copies if it is the second (else no copies): one pass keeping two
+/// values and their copies. A level rule's hint is a level below the
+/// previous `v(N)`, and the values just above it are mostly copies of
+/// one or two values (ties at `v(N)` of a faint spot's wings), where
+/// [`select::extremes`] would keep `m` of them (up to 8) and a deeper
+/// cutoff (N = 60) took a selection on a copy. `None` if the `m`-th lies
+/// deeper (spread values, a gain or background map).
+#[inline(never)]
+fn nth_of_two_lowest(front: &[Entry], hint: i32, m: usize) -> Option<(i32, i32, usize)> {
+    // `v1 < v2`, each with its copies; `i32::MAX` (above every calibrated
+    // value) until seen.
+    let (mut v1, mut c1, mut v2, mut c2) = (i32::MAX, 0usize, i32::MAX, 0usize);
+    for e in front {
+        let p = e.value;
+        if p <= hint || p > v2 {
+            continue;
+        }
+        if p == v2 {
+            c2 += 1;
+        } else if p == v1 {
+            c1 += 1;
+        } else if p < v1 {
+            (v2, c2, v1, c1) = (v1, c1, p, 1);
+        } else {
+            (v2, c2) = (p, 1);
+        }
+    }
+    if c1 >= m {
+        Some((v1, v1, 0))
+    } else if c1 + c2 >= m {
+        Some((v2, v1, c1))
+    } else {
+        None
+    }
 }
 
 /// A `subtract-next-distinct` window whose `held` pixels at or above the
