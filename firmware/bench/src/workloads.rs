@@ -185,6 +185,15 @@ pub const ALL: &[Workload] = &[
         sort: false,
         ..CANARY
     },
+    // DARC's rule at a larger N: its ends select `v(N)` among the ties
+    // above the previous level, which N = 20 alone would not show.
+    Workload {
+        name: "canary-subtract-next-distinct-n60",
+        rule: SelectionRule::SubtractNextDistinct,
+        n: 60,
+        sort: false,
+        ..CANARY
+    },
     Workload {
         name: "canary-n200",
         n: 200,
