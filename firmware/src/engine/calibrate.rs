@@ -224,6 +224,28 @@ impl WindowBounds {
 /// No raw value passes: above any 16-bit pixel.
 pub const FLOOR_NONE: u32 = 1 << 16;
 
+/// [`raw_floor`] capped at `most` (at most [`FLOOR_NONE`]) for a calibration
+/// without gain map or fixed threshold (`plain`: a background map or none),
+/// with no test of the calibration: a window's opening takes two
+/// (`stream::admission::FreshWindow`), each ~15 instructions fewer on
+/// Cortex-M4 this way.
+#[inline(always)]
+pub fn raw_floor_plain(bounds: WindowBounds, threshold: i32, most: u32) -> u32 {
+    // `i32::MIN` (no threshold) stays far below 0: floor 0, as `raw_floor`.
+    (floor_without_gain(bounds, threshold).max(0) as u32).min(most)
+}
+
+/// `ceil((threshold + min B) / 16)`, unclamped: the raw floor without a gain
+/// map. |threshold| < 2^26 (a calibrated value or a level) or `i32::MIN`,
+/// |min B| <= 2^20: saturating, the sum keeps its sign.
+#[inline(always)]
+fn floor_without_gain(bounds: WindowBounds, threshold: i32) -> i32 {
+    threshold
+        .saturating_add(bounds.background_min)
+        .saturating_add(15)
+        >> 4
+}
+
 /// The smallest raw value that can calibrate to `threshold` or more in a
 /// window with `bounds` (0: any; [`FLOOR_NONE`]: none). Conservative: every
 /// pixel whose calibrated value is `>= threshold` has `r >= floor`, some
@@ -238,13 +260,7 @@ pub fn raw_floor(c: &Calibration<'_>, bounds: WindowBounds, threshold: i32) -> u
         return 0;
     }
     if c.gain.is_none() {
-        // |threshold| < 2^26 past the test above (a calibrated value or a
-        // level), |min B| <= 2^20: the sum fits 32 bits.
-        let floor = (threshold
-            .saturating_add(bounds.background_min)
-            .saturating_add(15))
-            >> 4;
-        return floor.clamp(0, FLOOR_NONE as i32) as u32;
+        return floor_without_gain(bounds, threshold).clamp(0, FLOOR_NONE as i32) as u32;
     }
     // threshold > 0 here.
     if bounds.gain_max == 0 {

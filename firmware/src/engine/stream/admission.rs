@@ -4,7 +4,7 @@
 //! cutoff at or above it, and making room in a full candidate buffer.
 
 use super::Engine;
-use crate::engine::calibrate::raw_floor;
+use crate::engine::calibrate::{raw_floor, raw_floor_plain, WindowBounds};
 use crate::engine::select::{Buffer, Entry, Tiers, Ties, WindowRule};
 use crate::engine::window::{OpenWindow, Raise};
 use brightpix_protocol::{Config, SelectionRule};
@@ -218,33 +218,75 @@ impl FreshWindow {
         FreshWindow { beyond_n, raise }
     }
 
-    /// Admission, the kernel's raise and attention for `window`, opened
-    /// with a candidate buffer and its thresholds.
+    /// Admission, the kernel's raise and attention for a window opened
+    /// with a candidate buffer at `buffer` and the thresholds `low` and
+    /// `hint`, as values, so that the opening writes each field once.
+    /// `PLAIN`: the calibration has no gain map and no fixed threshold
+    /// (`calibrate::raw_floor_plain`).
     #[inline(always)]
-    pub(super) fn admit(self, window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) {
-        admit_at(window, config, max_raw, window.low);
-        let raise = if self.raise == Raise::AT_HINT && window.low == window.hint {
+    pub(super) fn admission<const PLAIN: bool>(
+        self,
+        (low, hint): (i32, i32),
+        bounds: WindowBounds,
+        n: u16,
+        buffer: usize,
+        config: &Config<'_>,
+        max_raw: u16,
+    ) -> FreshAdmission {
+        let floor = capped_floor::<PLAIN>(bounds, config, max_raw, low);
+        let raise = if self.raise == Raise::AT_HINT && low == hint {
             Raise::NONE
         } else {
             self.raise
         };
-        set_raise::<true>(window, config, max_raw, raise);
-        window.attention =
-            window.buffer + (window.n as usize + self.beyond_n).max(1) * size_of::<Entry>();
-        #[cfg(debug_assertions)]
-        {
-            // The general functions, on a copy, agree.
-            let mut general = *window;
-            update_admission(&mut general, config, max_raw);
-            general.attention = attention(&general, config.selection.rule);
-            debug_assert!(
-                (general.admit, general.floor, general.lanes, general.raise)
-                    == (window.admit, window.floor, window.lanes, window.raise)
-                    && (general.raise_lane, general.attention)
-                        == (window.raise_lane, window.attention)
-            );
+        let (raise, raise_lane) =
+            raise_and_lane::<PLAIN>(raise, true, hint, bounds, config, max_raw);
+        FreshAdmission {
+            admit: low,
+            floor,
+            lanes: lanes_of(floor),
+            raise,
+            raise_lane,
+            attention: buffer + (n as usize + self.beyond_n).max(1) * size_of::<Entry>(),
         }
     }
+
+    /// Debug builds: a window just opened with [`admission`](Self::admission)'s
+    /// fields holds what the general functions give it.
+    #[cfg(debug_assertions)]
+    pub(super) fn check(window: &OpenWindow, config: &Config<'_>, max_raw: u16) {
+        let mut general = *window;
+        update_admission(&mut general, config, max_raw);
+        general.attention = attention(&general, config.selection.rule);
+        debug_assert!(
+            (general.admit, general.floor, general.lanes, general.raise)
+                == (window.admit, window.floor, window.lanes, window.raise)
+                && (general.raise_lane, general.attention) == (window.raise_lane, window.attention)
+        );
+    }
+}
+
+/// What [`FreshWindow::admission`] gives a window's fields.
+pub(super) struct FreshAdmission {
+    pub(super) admit: i32,
+    pub(super) floor: u32,
+    pub(super) lanes: u32,
+    pub(super) raise: Raise,
+    pub(super) raise_lane: u16,
+    pub(super) attention: usize,
+}
+
+impl FreshAdmission {
+    /// A window without selection: every pixel to the general path (floor
+    /// 0), no raise, no attention.
+    pub(super) const NONE: FreshAdmission = FreshAdmission {
+        admit: 0,
+        floor: 0,
+        lanes: 0,
+        raise: Raise::NONE,
+        raise_lane: 0,
+        attention: usize::MAX,
+    };
 }
 
 /// After `low`, `hint` or `strict` changed: the window's admission
@@ -263,9 +305,33 @@ pub(super) fn update_admission(window: &mut OpenWindow, config: &Config<'_>, max
 #[inline(always)]
 pub(super) fn admit_at(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16, admit: i32) {
     window.admit = admit;
-    let floor = raw_floor(&config.calibration, window.bounds, admit).min(max_raw as u32 + 1);
+    let floor = capped_floor::<false>(window.bounds, config, max_raw, admit);
     window.floor = floor;
-    window.lanes = floor.wrapping_sub(1).wrapping_mul(0x0001_0001);
+    window.lanes = lanes_of(floor);
+}
+
+/// The kernel's form of a raw floor: `floor - 1` in both 16-bit lanes.
+#[inline(always)]
+fn lanes_of(floor: u32) -> u32 {
+    floor.wrapping_sub(1).wrapping_mul(0x0001_0001)
+}
+
+/// The raw floor of `threshold` in a window with `bounds`, capped so that a
+/// pixel above `max_raw` always passes (see `OpenWindow::floor`); `PLAIN` as
+/// in [`FreshWindow::admission`].
+#[inline(always)]
+fn capped_floor<const PLAIN: bool>(
+    bounds: WindowBounds,
+    config: &Config<'_>,
+    max_raw: u16,
+    threshold: i32,
+) -> u32 {
+    let most = max_raw as u32 + 1;
+    if PLAIN {
+        raw_floor_plain(bounds, threshold, most)
+    } else {
+        raw_floor(&config.calibration, bounds, threshold).min(most)
+    }
 }
 
 /// When the front reaches `attention`, the row kernel raises admission to
@@ -310,40 +376,37 @@ fn prepare_raise(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) {
         // M is 1..=16 (`Config::validate`).
         SelectionRule::SubtractMean { count } => Raise::counting(count as u8),
     };
-    set_raise::<false>(window, config, max_raw, raise);
+    // A window just opened, or one that is not strict, has no low ties
+    // and selects.
+    let allowed = !window.strict && window.low_ties.count == 0 && window.capacity > 0;
+    (window.raise, window.raise_lane) =
+        raise_and_lane::<false>(raise, allowed, window.hint, window.bounds, config, max_raw);
 }
 
-/// [`prepare_raise`] once the raise is chosen: its raw floor (see
-/// [`Raise::admits_hint`]), if the window can take it, else no raise.
-/// `FRESH`: a window just opened with
-/// a candidate buffer ([`FreshWindow`]), which is not strict and has no
-/// low ties, so those tests are left out (they cost every opening ~17
-/// instructions on Cortex-M4, loaded from the window just written).
+/// [`prepare_raise`] once the raise is chosen: the raise and its lane, the
+/// lane of its raw floor (see [`Raise::admits_hint`]), if the window can
+/// take it (`allowed`), else no raise. A window just opened
+/// ([`FreshWindow`]) can: not strict, no low ties, a candidate buffer (the
+/// tests cost every opening ~17 instructions on Cortex-M4).
 #[inline(always)]
-fn set_raise<const FRESH: bool>(
-    window: &mut OpenWindow,
+fn raise_and_lane<const PLAIN: bool>(
+    raise: Raise,
+    allowed: bool,
+    hint: i32,
+    bounds: WindowBounds,
     config: &Config<'_>,
     max_raw: u16,
-    raise: Raise,
-) {
+) -> (Raise, u16) {
     let strict = !raise.admits_hint();
     let mut floor = 0;
     // `hint + 1` must not overflow: the kernel adds without saturating.
-    if raise != Raise::NONE
-        && (FRESH || (!window.strict && window.low_ties.count == 0 && window.capacity > 0))
-        && (!strict || window.hint < i32::MAX)
-    {
-        floor = raw_floor(
-            &config.calibration,
-            window.bounds,
-            window.hint + strict as i32,
-        )
-        .min(max_raw as u32 + 1);
+    if raise != Raise::NONE && allowed && (!strict || hint < i32::MAX) {
+        floor = capped_floor::<PLAIN>(bounds, config, max_raw, hint + strict as i32);
     }
     // A raised floor is at most 2^16 (the camera's largest raw value + 1),
     // so its lane `floor - 1` is a u16.
-    window.raise = if floor != 0 { raise } else { Raise::NONE };
-    window.raise_lane = floor.wrapping_sub(1) as u16;
+    let raise = if floor != 0 { raise } else { Raise::NONE };
+    (raise, floor.wrapping_sub(1) as u16)
 }
 
 /// [`Tiers::covers_hint`] for an open window: its front holds the pixels

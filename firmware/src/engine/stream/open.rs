@@ -2,11 +2,11 @@
 //! buffer from the pool, the seed's thresholds, a place in column order;
 //! and the open windows' layout flags.
 
-use super::admission::FreshWindow;
+use super::admission::{FreshAdmission, FreshWindow};
 use super::Engine;
 use crate::engine::centroid::Moments;
 use crate::engine::select::{preferred_capacity_of, Entry, Ties};
-use crate::engine::window::{OpenWindow, Raise};
+use crate::engine::window::OpenWindow;
 
 impl Engine<'_, '_> {
     /// Whether some window's first row is the current row (most rows open
@@ -38,35 +38,51 @@ impl Engine<'_, '_> {
         // An instance each: `subtract-next-distinct`'s raised hints in the
         // other rules' loop cost them register room (Cortex-M7 CANARY
         // +0.03 instructions a pixel, 8x8 windows +0.11).
-        if self.hint_above {
-            self.open_windows::<true>();
-        } else {
-            self.open_windows::<false>();
+        // Likewise for a calibration without gain map or fixed threshold,
+        // whose raw floors take no test of it (`FreshWindow::admission`).
+        let c = &self.config.calibration;
+        let plain = c.gain.is_none() && c.threshold.is_none();
+        match (self.hint_above, plain) {
+            (true, true) => self.open_windows::<true, true>(),
+            (true, false) => self.open_windows::<true, false>(),
+            (false, true) => self.open_windows::<false, true>(),
+            (false, false) => self.open_windows::<false, false>(),
         }
     }
 
     /// [`open_windows_of_row`](Self::open_windows_of_row), with each
     /// window's hint one above its seed's (`HINT_ABOVE`, see
-    /// `Engine::hint_above`) or not. Out of line: inlined into
+    /// `Engine::hint_above`) or not; `PLAIN` as in `FreshWindow::admission`.
+    /// Out of line: inlined into
     /// `Engine::row_events` it cost that ~25 instructions a call, the
     /// frame's end among them (every last row +29).
     #[inline(never)]
-    fn open_windows<const HINT_ABOVE: bool>(&mut self) {
+    fn open_windows<const HINT_ABOVE: bool, const PLAIN: bool>(&mut self) {
         let windows = self.config.windows;
         let fresh = FreshWindow::of(self.config.selection.rule);
         // Windows of one row mostly share N and size: the capacity of the
         // last one, for the next if they match.
         let (mut last_n, mut last_pixels, mut last_capacity) = (u16::MAX, 0u16, 0u16);
-        while self.next_to_open < windows.len() {
-            let index = self.memory.order[self.next_to_open] as usize;
-            let w = windows[index];
+        // The counts in locals, written back once (stored at each window
+        // they cost it three instructions).
+        let (mut next, mut free_len, mut open_len) =
+            (self.next_to_open, self.free_len, self.open_len);
+        while next < windows.len() {
+            // SAFETY: `order` holds a permutation of the windows' indices
+            // (`plan`), one a window, and the memory holds a sub-aperture
+            // state for each (`MemorySize::subapertures`, checked at
+            // configuration): the accesses below by `next` and `index` are
+            // in bounds (unchecked, ~8 instructions a window fewer).
+            let index = unsafe { *self.memory.order.get_unchecked(next) } as usize;
+            debug_assert!(index < windows.len() && index < self.memory.subapertures.len());
+            let w = unsafe { *windows.get_unchecked(index) };
             if w.y != self.row {
                 break;
             }
-            self.next_to_open += 1;
+            next += 1;
             // Capacity was proved sufficient when the engine was configured.
-            self.free_len -= 1;
-            let number = self.memory.free[self.free_len];
+            free_len -= 1;
+            let number = self.memory.free[free_len];
             let n = self.config.pixel_count(index);
             // At most 64 x 64 (`Config::validate`): a u16.
             let pixels = w.width * w.height;
@@ -81,7 +97,8 @@ impl Engine<'_, '_> {
                 (last_n, last_pixels) = (n, pixels);
             }
             let capacity = last_capacity;
-            let state = &self.memory.subapertures[index];
+            // SAFETY: see `index`.
+            let state = unsafe { self.memory.subapertures.get_unchecked(index) };
             let (hint, low) = if capacity > 0 {
                 let (hint, low) = state.seed.thresholds();
                 (hint.saturating_add(HINT_ABOVE as i32), low)
@@ -90,14 +107,14 @@ impl Engine<'_, '_> {
             };
             // Its place in column order.
             let open = &mut self.memory.open;
-            let mut k = self.open_len;
+            let mut k = open_len;
             while k > 0 && open[k - 1].x > w.x {
                 k -= 1;
             }
-            if k < self.open_len {
-                open.copy_within(k..self.open_len, k + 1);
+            if k < open_len {
+                open.copy_within(k..open_len, k + 1);
             }
-            self.open_len += 1;
+            open_len += 1;
             let buffer = self.pool + number as usize * self.stride * core::mem::size_of::<Entry>();
             // Field by field, in place, through a pattern that names every
             // field (so a new one fails to compile here until it is set): as
@@ -141,16 +158,12 @@ impl Engine<'_, '_> {
                 bounds,
                 moments,
             } = &mut open[k];
-            *lanes = 0;
-            *admit = low;
             *position_base = 0u32
                 .wrapping_sub((w.y as u32) << 6)
                 .wrapping_sub(w.x as u32);
             *window_hint = hint;
             *front_end = buffer;
             *back_start = buffer + capacity as usize * core::mem::size_of::<Entry>();
-            *window_attention = usize::MAX;
-            *raise_lane = 0;
             // `width >= 1` (`Config::validate`).
             *short_of_room = 8 * (w.width - 1);
             *window_buffer = buffer;
@@ -169,23 +182,41 @@ impl Engine<'_, '_> {
             *hint_ties = Ties::NONE;
             *window_low = low;
             *low_ties = Ties::NONE;
-            *floor = 0;
             *finished = false;
             *strict = false;
-            *raise = Raise::NONE;
             *rescan = false;
             *bounds = state.bounds;
             *moments = Moments::ZERO;
             // A window without selection keeps floor 0 (every segment to
             // `segment_rest`).
+            let admission = if capacity > 0 {
+                fresh.admission::<PLAIN>(
+                    (low, hint),
+                    state.bounds,
+                    n,
+                    buffer,
+                    &self.config,
+                    self.max_raw,
+                )
+            } else {
+                FreshAdmission::NONE
+            };
+            *lanes = admission.lanes;
+            *admit = admission.admit;
+            *window_attention = admission.attention;
+            *raise_lane = admission.raise_lane;
+            *floor = admission.floor;
+            *raise = admission.raise;
             let window = &mut open[k];
+            #[cfg(debug_assertions)]
             if capacity > 0 {
-                fresh.admit(window, &self.config, self.max_raw);
+                FreshWindow::check(window, &self.config, self.max_raw);
             }
             if !window.update_kernel_segment() {
                 self.not_ready += 1;
             }
         }
+        (self.next_to_open, self.free_len, self.open_len) = (next, free_len, open_len);
         self.update_event_row();
         self.update_layout();
     }
