@@ -376,8 +376,8 @@ fn prepare_raise(window: &mut OpenWindow, config: &Config<'_>, max_raw: u16) {
         // M is 1..=16 (`Config::validate`).
         SelectionRule::SubtractMean { count } => Raise::counting(count as u8),
     };
-    // A window just opened, or one that is not strict, has no low ties
-    // and selects.
+    // Only a window that is not strict, has no low ties and selects takes
+    // a raise (a window just opened always does: `FreshWindow::admission`).
     let allowed = !window.strict && window.low_ties.count == 0 && window.capacity > 0;
     (window.raise, window.raise_lane) =
         raise_and_lane::<false>(raise, allowed, window.hint, window.bounds, config, max_raw);
