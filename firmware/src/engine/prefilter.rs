@@ -48,9 +48,10 @@ pub fn any_at_least_portable(raw: &[u16], floor: u16) -> bool {
 /// `k` for `raw[k] >= floor`; `floor >= 1`. The host's hot loop visits only
 /// those bits (`scan::row_portable`).
 ///
-/// On x86-64, eight pixels per SSE2 step (`PSUBUSW` against `floor - 1`,
-/// `PCMPEQW`, `PMOVMSKB`), about a dozen instructions for a 16-pixel
-/// segment where the compiler's scalar loop took four a pixel;
+/// On x86-64, sixteen pixels per SSE2 step (`PSUBUSW` against `floor - 1`
+/// and `PCMPEQW` on each half, `PACKSSWB`, `PMOVMSKB`), about ten
+/// instructions for a 16-pixel segment where the compiler's scalar loop
+/// took four a pixel;
 /// [`mask_at_least_portable`] is its twin (tests/tests/prefilter_mask.rs
 /// compares them).
 #[inline(always)]
@@ -85,23 +86,34 @@ mod sse2 {
     #[inline(always)]
     pub fn mask_at_least(raw: &[u16], floor: u16) -> u64 {
         let raw = &raw[..raw.len().min(64)];
-        // SAFETY: SSE2 is part of x86-64; the loads read 8 pixels of `raw`
-        // each (`chunks_exact(8)`).
+        // SAFETY: SSE2 is part of x86-64; each load reads 8 pixels of
+        // `raw` (`chunks_exact(16)`, then at least 8 left).
         unsafe {
             let below = _mm_set1_epi16(floor.wrapping_sub(1) as i16);
             let zero = _mm_setzero_si128();
+            // A lane is 0xffff where the pixel is at most floor - 1.
+            let low = |p: *const u16| {
+                _mm_cmpeq_epi16(_mm_subs_epu16(_mm_loadu_si128(p.cast()), below), zero)
+            };
             let mut mask = 0u64;
-            let mut chunks = raw.chunks_exact(8);
-            for (c, chunk) in (&mut chunks).enumerate() {
-                let v = _mm_loadu_si128(chunk.as_ptr().cast());
-                // A lane is 0xffff where the pixel is at most floor - 1.
-                let low = _mm_cmpeq_epi16(_mm_subs_epu16(v, below), zero);
-                // One byte per lane, then one bit per byte.
-                let bits = _mm_movemask_epi8(_mm_packs_epi16(low, zero)) as u64 & 0xff;
-                mask |= (bits ^ 0xff) << (8 * c);
+            let mut done = 0;
+            // Sixteen pixels a step: both halves packed to one byte a
+            // lane, one bit a byte (a 16-pixel segment, the usual
+            // window, in one step).
+            let mut sixteens = raw.chunks_exact(16);
+            for chunk in &mut sixteens {
+                let p = chunk.as_ptr();
+                let bits = _mm_movemask_epi8(_mm_packs_epi16(low(p), low(p.add(8)))) as u64;
+                mask |= (bits ^ 0xffff) << done;
+                done += 16;
             }
-            let done = raw.len() - chunks.remainder().len();
-            for (k, &r) in chunks.remainder().iter().enumerate() {
+            let rest = sixteens.remainder();
+            if rest.len() >= 8 {
+                let bits = _mm_movemask_epi8(_mm_packs_epi16(low(rest.as_ptr()), zero)) as u64;
+                mask |= ((bits & 0xff) ^ 0xff) << done;
+                done += 8;
+            }
+            for (k, &r) in raw[done..].iter().enumerate() {
                 mask |= ((r >= floor) as u64) << (done + k);
             }
             mask

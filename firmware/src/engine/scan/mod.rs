@@ -247,7 +247,9 @@ pub unsafe fn row_portable<S: Steps, const CHECK: bool>(args: &mut RowScan) -> R
             while bits != 0 {
                 let i = bits.trailing_zeros() as usize;
                 bits &= bits - 1;
-                let r = raw[i];
+                debug_assert!(i < raw.len());
+                // SAFETY: `hot_pixels` sets bits of `raw`'s pixels only.
+                let r = unsafe { *raw.get_unchecked(i) };
                 if CHECK && r as u32 > args.max_raw {
                     args.bad = raw.as_ptr() as usize + 2 * i;
                     return RowStop::OutOfRange {
@@ -259,10 +261,9 @@ pub unsafe fn row_portable<S: Steps, const CHECK: bool>(args: &mut RowScan) -> R
                 let p = unsafe {
                     calibrate::value_in_run_unchecked::<S>(r, i, background, gain, args.threshold)
                 };
-                let entry = Entry {
-                    value: p,
-                    position: position.wrapping_add(i as u32),
-                };
+                // The entry as one word (`Entry` is `repr(C)`, value
+                // first): one store a copy, not two.
+                let entry = Entry::word(p, position.wrapping_add(i as u32));
                 // Without a branch (they mispredict on hosts): written at
                 // both free ends, kept by moving the end of its tier. The
                 // buffer has room for the segment (the caller's contract)
@@ -271,10 +272,11 @@ pub unsafe fn row_portable<S: Steps, const CHECK: bool>(args: &mut RowScan) -> R
                 let admitted = p >= admit;
                 let upper = p >= hint;
                 const ENTRY: usize = core::mem::size_of::<Entry>();
-                // SAFETY: see above.
+                // SAFETY: see above (`Entry`'s alignment is 4: unaligned
+                // word stores).
                 unsafe {
-                    (front_end as *mut Entry).write(entry);
-                    ((back_start - ENTRY) as *mut Entry).write(entry);
+                    (front_end as *mut u64).write_unaligned(entry);
+                    ((back_start - ENTRY) as *mut u64).write_unaligned(entry);
                 }
                 front_end += ENTRY * (admitted & upper) as usize;
                 back_start -= ENTRY * (admitted & !upper) as usize;

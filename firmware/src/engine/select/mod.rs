@@ -81,6 +81,15 @@ impl Entry {
         value: 0,
         position: 0,
     };
+
+    /// The entry's bytes as one word, for one store of both fields where
+    /// the compiler makes two of a struct's.
+    #[inline(always)]
+    pub fn word(value: i32, position: u32) -> u64 {
+        // SAFETY: `repr(C)`, two 4-byte fields and no padding: eight bytes,
+        // any of which make a `u64`.
+        unsafe { core::mem::transmute(Entry { value, position }) }
+    }
 }
 
 /// The selection parameters of one window.
