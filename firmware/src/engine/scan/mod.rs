@@ -390,7 +390,7 @@ fn count_and_prove(window: &mut OpenWindow, copies: u8) -> bool {
 }
 
 /// The pixels of `raw` (at most 64) above `lanes`' low half, as a bit
-/// mask. On x86-64 eight at a time (`prefilter::mask_at_least`); on
+/// mask. On x86-64 sixteen at a time (`prefilter::mask_at_least`); on
 /// Cortex-M (where this is the twin and the gain path) two at a time by
 /// `UQSUB16`.
 #[inline(always)]
