@@ -49,9 +49,9 @@ pub fn any_at_least_portable(raw: &[u16], floor: u16) -> bool {
 /// those bits (`scan::row_portable`).
 ///
 /// On x86-64, sixteen pixels per SSE2 step (`PSUBUSW` against `floor - 1`
-/// and `PCMPEQW` on each half, `PACKSSWB`, `PMOVMSKB`), about ten
-/// instructions for a 16-pixel segment where the compiler's scalar loop
-/// took four a pixel;
+/// and `PCMPEQW` on each half, `PACKSSWB`, `PMOVMSKB`): about twenty-five
+/// instructions for a 16-pixel segment, setup included (about forty in
+/// steps of eight, four a pixel in the compiler's scalar loop);
 /// [`mask_at_least_portable`] is its twin (tests/tests/prefilter_mask.rs
 /// compares them).
 #[inline(always)]
