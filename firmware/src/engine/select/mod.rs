@@ -44,8 +44,13 @@ use super::centroid::Moments;
 use brightpix_protocol::SelectionRule;
 
 mod buffer;
+mod one_pass;
 
 pub use buffer::Buffer;
+pub use one_pass::{
+    largest_and_next, largest_and_next_counting, largest_and_next_skipping, two_lowest_above,
+    two_lowest_above_counting, two_lowest_above_skipping, LargestAndNext, TwoLowest,
+};
 
 /// Bits of the column in a packed window position `(j << 6) | i`.
 pub const COLUMN_BITS: u16 = 6;

@@ -43,7 +43,7 @@
 use super::admission::settle_at_hint;
 use super::{Engine, OutputSink};
 use crate::engine::centroid::{self, Moments, SumsAbove};
-use crate::engine::select::{self, Entry, Ties};
+use crate::engine::select::{self, Entry};
 use crate::engine::window::OpenWindow;
 use crate::engine::LevelFilterState;
 use brightpix_protocol::SelectionRule;
@@ -399,36 +399,20 @@ fn level_rule_end(
 /// The `m`-th smallest of the front's values above `hint` when it is one
 /// of the two smallest values there, with the smallest and its number of
 /// copies if it is the second (else no copies): one pass keeping two
-/// values and their copies. A level rule's hint is a level below the
-/// previous `v(N)`, and the values just above it are mostly copies of
-/// one or two values (ties at `v(N)` of a faint spot's wings), where
-/// [`select::extremes`] would keep `m` of them (up to 8) and a deeper
-/// cutoff (N = 60) took a selection on a copy. `None` if the `m`-th lies
-/// deeper (spread values, a gain or background map).
+/// values and their copies ([`select::two_lowest_above`]). A level rule's
+/// hint is a level below the previous `v(N)`, and the values just above
+/// it are mostly copies of one or two values (ties at `v(N)` of a faint
+/// spot's wings), where [`select::extremes`] would keep `m` of them (up to
+/// 8) and a deeper cutoff (N = 60) took a selection on a copy. `None` if
+/// the `m`-th lies deeper (spread values, a gain or background map).
 #[inline(never)]
 fn nth_of_two_lowest(front: &[Entry], hint: i32, m: usize) -> Option<(i32, i32, usize)> {
-    // `v1 < v2`, each with its copies; `i32::MAX` (above every calibrated
-    // value) until seen.
-    let (mut v1, mut c1, mut v2, mut c2) = (i32::MAX, 0usize, i32::MAX, 0usize);
-    for e in front {
-        let p = e.value;
-        if p <= hint || p > v2 {
-            continue;
-        }
-        if p == v2 {
-            c2 += 1;
-        } else if p == v1 {
-            c1 += 1;
-        } else if p < v1 {
-            (v2, c2, v1, c1) = (v1, c1, p, 1);
-        } else {
-            (v2, c2) = (p, 1);
-        }
-    }
+    let two = select::two_lowest_above(front, hint);
+    let (v1, c1) = (two.lowest, two.lowest_copies);
     if c1 >= m {
         Some((v1, v1, 0))
-    } else if c1 + c2 >= m {
-        Some((v2, v1, c1))
+    } else if c1 + two.second_copies >= m {
+        Some((two.second, v1, c1))
     } else {
         None
     }
@@ -439,8 +423,9 @@ fn nth_of_two_lowest(front: &[Entry], hint: i32, m: usize) -> Option<(i32, i32, 
 /// `Engine::hint_above`, which a window whose cutoff did not fall passes
 /// N times before its end): `v(N)` is the back tier's largest value `b`
 /// if its copies make N, and the level the largest value below `b` in the
-/// back. One pass over the back finds both and `b`'s copies, which are
-/// kept with every pixel at or above the hint.
+/// back. One pass over the back finds both and `b`'s copies
+/// ([`select::largest_and_next`]), which are kept with every pixel at or
+/// above the hint.
 /// `None` (the ordinary end) if `b`'s copies fall short, nothing lies
 /// below `b` in the back, or there are low ties. Out of line: inlined, it
 /// cost `subtract-mean`'s end registers.
@@ -456,20 +441,11 @@ fn distinct_cutoff_in_back(
     if window.low_ties.count != 0 {
         return None;
     }
-    let (mut b, mut below) = (i32::MIN, i32::MIN);
-    let mut copies = Ties::NONE;
-    for e in back {
-        if e.value > b {
-            below = b;
-            b = e.value;
-            copies = Ties::NONE;
-            copies.add(e.position as u16);
-        } else if e.value == b {
-            copies.add(e.position as u16);
-        } else if e.value > below {
-            below = e.value;
-        }
-    }
+    let select::LargestAndNext {
+        largest: b,
+        copies,
+        next: below,
+    } = select::largest_and_next(back);
     // A value below `b` held: `below`, unless it is still the marker (the
     // back's values are calibrated values, above `i32::MIN`).
     if copies.count == 0 || held + (copies.count as usize) < window.n as usize || below == i32::MIN
