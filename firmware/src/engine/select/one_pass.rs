@@ -126,6 +126,23 @@ pub struct LargestAndNext {
     pub next: i32,
 }
 
+impl LargestAndNext {
+    const NONE: LargestAndNext = LargestAndNext {
+        largest: i32::MIN,
+        copies: Ties::NONE,
+        next: i32::MIN,
+    };
+
+    /// `p`, at `position`, above the largest so far.
+    #[inline(always)]
+    fn take(&mut self, p: i32, position: u16) {
+        self.next = self.largest;
+        self.largest = p;
+        self.copies = Ties::NONE;
+        self.copies.add(position);
+    }
+}
+
 /// [`LargestAndNext`] of `entries`: [`largest_and_next_skipping`] on
 /// Cortex-M, [`largest_and_next_counting`] elsewhere.
 #[inline(always)]
@@ -140,48 +157,34 @@ pub fn largest_and_next(entries: &[Entry]) -> LargestAndNext {
 /// [`largest_and_next`] with a branch per value.
 #[inline(always)]
 pub fn largest_and_next_skipping(entries: &[Entry]) -> LargestAndNext {
-    let (mut b, mut next, mut copies) = (i32::MIN, i32::MIN, Ties::NONE);
+    let mut top = LargestAndNext::NONE;
     for e in entries {
-        if e.value > b {
-            next = b;
-            b = e.value;
-            copies = Ties::NONE;
-            copies.add(e.position as u16);
-        } else if e.value == b {
-            copies.add(e.position as u16);
-        } else if e.value > next {
-            next = e.value;
+        if e.value > top.largest {
+            top.take(e.value, e.position as u16);
+        } else if e.value == top.largest {
+            top.copies.add(e.position as u16);
+        } else if e.value > top.next {
+            top.next = e.value;
         }
     }
-    LargestAndNext {
-        largest: b,
-        copies,
-        next,
-    }
+    top
 }
 
 /// [`largest_and_next`] with copies added without a branch (times 0 or 1)
 /// and a branch only for a value above the largest so far.
 #[inline(always)]
 pub fn largest_and_next_counting(entries: &[Entry]) -> LargestAndNext {
-    let (mut b, mut next, mut copies) = (i32::MIN, i32::MIN, Ties::NONE);
+    let mut top = LargestAndNext::NONE;
     for e in entries {
         let (p, position) = (e.value, e.position as u16);
-        let copy = (p == b) as u16;
-        copies.count += copy;
-        copies.sum_i += (column(position) * copy) as u32;
-        copies.sum_j += (row(position) * copy) as u32;
-        next = next.max(if p < b { p } else { i32::MIN });
-        if p > b {
-            next = b;
-            b = p;
-            copies = Ties::NONE;
-            copies.add(position);
+        let copy = (p == top.largest) as u16;
+        top.copies.count += copy;
+        top.copies.sum_i += (column(position) * copy) as u32;
+        top.copies.sum_j += (row(position) * copy) as u32;
+        top.next = top.next.max(if p < top.largest { p } else { i32::MIN });
+        if p > top.largest {
+            top.take(p, position);
         }
     }
-    LargestAndNext {
-        largest: b,
-        copies,
-        next,
-    }
+    top
 }
