@@ -410,27 +410,39 @@ fn a_steady_spot_keeps_few_candidates() {
     );
 }
 
-/// The seed's margin (speed only): a steady cutoff admits one whole count
-/// below it next frame (without a gain map calibrated values of a window
-/// differ by whole counts, 16 units, so a narrower margin admits nothing
-/// below the hint and any fall of the cutoff costs a rescan) and not two;
-/// a cutoff that fell by 4 counts widens it to at least half that, one that
-/// fell by 40 to more than that; a seed that was too high widens it
-/// further.
+/// The seed's margin (speed only): a steady cutoff admits less than a
+/// count below it next frame (without a gain map calibrated values of a
+/// window differ by whole counts, 16 units, so nothing below the hint's
+/// level: a fall costs a rescan), but more than half a count, and in a
+/// window ending in the frame's last row one count but not two; a cutoff
+/// that fell by one count widens it to a count or more, one that fell by 4
+/// counts to at least half that, one that fell by 40 to more than that; a
+/// seed that was too high widens it further.
 #[test]
 fn the_seed_margin_follows_the_cutoffs_moves() {
-    use brightpix_firmware::engine::seed::Seed;
+    use brightpix_firmware::engine::seed::{MarginFloor, Seed};
     let margin = |seed: &Seed| {
-        let (hint, low) = seed.thresholds();
+        let (hint, low) = seed.thresholds(MarginFloor::ORDINARY);
         hint - low
     };
     let mut steady = Seed::RESET;
-    assert_eq!(steady.thresholds(), (i32::MIN, i32::MIN));
+    assert_eq!(
+        steady.thresholds(MarginFloor::ORDINARY),
+        (i32::MIN, i32::MIN)
+    );
     for _ in 0..400 {
         steady.observe(1_000, false);
     }
-    assert_eq!(steady.thresholds().0, 1_000);
-    assert!((16..32).contains(&margin(&steady)), "{}", margin(&steady));
+    assert_eq!(steady.thresholds(MarginFloor::ORDINARY).0, 1_000);
+    assert!((8..16).contains(&margin(&steady)), "{}", margin(&steady));
+    // A window ending in the frame's last row, whose rescan would delay
+    // the frame's last results: one count below, not two.
+    let (hint, low) = steady.thresholds(MarginFloor::LAST_ROW);
+    assert!((16..32).contains(&(hint - low)), "{}", hint - low);
+
+    let mut fell_a_count = steady;
+    fell_a_count.observe(1_000 - 16, false);
+    assert!(margin(&fell_a_count) >= 16, "{}", margin(&fell_a_count));
 
     let mut moving = steady;
     moving.observe(1_000 - 64, false);
@@ -461,8 +473,9 @@ fn the_seed_margin_follows_the_cutoffs_moves() {
 /// overflow (debug builds would panic), from either end of the `i32`s.
 #[test]
 fn the_seed_spread_is_capped_for_any_jump() {
-    use brightpix_firmware::engine::seed::Seed;
-    let capped = (1 << 25) + (1 << 24) - 48 + 18;
+    use brightpix_firmware::engine::seed::{MarginFloor, Seed};
+    // The margin's floor: 10 units, 18 for a window ending in the last row.
+    let capped = |floor: i32| (1 << 25) + (1 << 24) - 48 + floor;
     for (from, to) in [
         (1 << 30, 0),
         (-(1 << 30), 0),
@@ -473,12 +486,21 @@ fn the_seed_spread_is_capped_for_any_jump() {
         let mut seed = Seed::RESET;
         seed.observe(from, false);
         seed.observe(to, false);
-        let (hint, low) = seed.thresholds();
-        assert_eq!((hint, hint - low), (to, capped), "{from} -> {to}");
+        for (floor, units) in [(MarginFloor::ORDINARY, 10), (MarginFloor::LAST_ROW, 18)] {
+            let (hint, low) = seed.thresholds(floor);
+            assert_eq!((hint, hint - low), (to, capped(units)), "{from} -> {to}");
+        }
     }
     // Beyond the cap the margin saturates at `i32::MIN`.
     let mut seed = Seed::RESET;
     seed.observe(i32::MAX, false);
     seed.observe(i32::MIN + 1, true);
-    assert_eq!(seed.thresholds(), (i32::MIN + 1, i32::MIN));
+    assert_eq!(
+        seed.thresholds(MarginFloor::ORDINARY),
+        (i32::MIN + 1, i32::MIN)
+    );
+    assert_eq!(
+        seed.thresholds(MarginFloor::LAST_ROW),
+        (i32::MIN + 1, i32::MIN)
+    );
 }

@@ -28,29 +28,41 @@ const NONE: i32 = i32::MIN;
 const DECAY_BITS: u32 = 5;
 
 /// The part of the margin that does not follow the spread, in 1/16 count:
-/// a count and an eighth. Calibrated values of one window differ by whole
-/// counts without a gain map, so a margin below 16 admits nothing below the
-/// hint, and any fall of the cutoff costs a rescan.
+/// five eighths of a count. Calibrated values of one window differ by
+/// whole counts without a gain map, so a steady cutoff's window admits
+/// nothing below its hint's level, and a fall of the cutoff costs a rescan;
+/// after one, the spread keeps the margin at a count or more for about
+/// nine frames (half the spread of a one-count fall is 8/16: 18 in all).
 ///
 /// The margin is this plus half the spread up to `KNEE` and one and a half
 /// times it beyond. Chosen on the QEMU bench (Cortex-M4, instructions a
-/// pixel) on its faint spots (a peak of ~14 counts over +-3 of noise, where
-/// one count level holds ~20 pixels of a window, so each level of margin
-/// costs ~20 admissions) and on spots 10 and 30 times brighter (where
-/// levels are sparse and a rescan costs more than a wide margin). The
-/// previous margin, one and a half times the spread plus 1/16 count:
-/// CANARY subtract-next 14.13 faint, 11.63 and 11.98 bright; half the
-/// spread plus 20/16 everywhere: 13.22 faint but 12.72 and 13.98 bright.
-/// Since a rescan widens the spread by half its change, not twice (see
-/// [`Seed::observe`]), on three generator seeds of the bench frames
-/// (subtract-next / threshold / N = 5 / bright x10 / closed loop, the
-/// bench's seed): 24/16 count 12.57 / 13.41 / 8.72 / 10.91 / 12.31,
-/// 20/16 12.21 / 13.39 / 9.07 / 11.01 / 11.73, 18/16 12.12 / 13.33 /
-/// 9.13 / 11.05 / 11.69, 16/16 12.11 / 13.30 / 9.37 / 11.10 / 11.65,
-/// 8/16 12.20 / 13.43 / 10.09 / 11.19 / 12.29 (more rescans); the two
-/// other seeds rank them alike. 18 gains most of 16's on the N = 20
-/// rules without its cost at N = 5.
-const MARGIN_FLOOR: i32 = 18;
+/// pixel, every workload) on three generator seeds of its frames, floors
+/// from 8/16 to 18/16 (18/16 had been chosen the same way on an earlier
+/// engine). With 10/16 here and 18/16 in the last row
+/// ([`LAST_ROW_MARGIN_FLOOR`]), against 18/16 everywhere, averaged over
+/// the seeds: subtract-next -0.06, threshold -0.24, distinct -0.25, mean
+/// -0.11, the board's camera path -0.09, closed-loop spots -0.17, noise
+/// +-6 on a patterned background -0.12, N = 60 -0.80 (distinct at N = 60
+/// -0.73), 32x32 windows -0.54, 8x8 -0.05, ELT -0.05, last rows unchanged;
+/// dearer N = 5 +0.43 (its cutoff lies on the spot's steep flank, where a
+/// frame's fall is often more than a count: 18 -> 31 rescans on the
+/// bench's seed) and bright spots +0.07. 11/16 and 12/16 (everywhere)
+/// gained a little more on subtract-next (-0.09, -0.08 against 10/16's
+/// -0.04) and cost N = 5 a little less (+0.41, +0.36 against +0.46), but
+/// none of N = 60's gain; 8/16 and 9/16 rescanned more (subtract-next
+/// +0.13, +0.10; 8x8 windows +0.50, +0.46; 8/16 N = 200 +2.07).
+const MARGIN_FLOOR: i32 = 10;
+
+/// [`MARGIN_FLOOR`] for a window that ends in the frame's last camera row:
+/// a count and an eighth, so that a steady cutoff admits one count below
+/// it. Its rescan would come after the frame's last pixel, in the latency
+/// the engine exists to keep short: at 10/16 there too, the bench's last
+/// rows grew where its rescans fell there (32x32 windows 2,398 -> 3,693
+/// instructions, the 12-bit runs of 1,024 pixels 4,872 -> 5,573). Against
+/// 10/16 everywhere this floor costs N = 60 0.16 instructions a pixel,
+/// 32x32 windows 0.13 and the other rows less than 0.05 (averages over
+/// three generator seeds).
+const LAST_ROW_MARGIN_FLOOR: i32 = 18;
 
 /// Up to this spread (in calibrated units, 3 counts) the margin follows
 /// half of it; see [`MARGIN_FLOOR`].
@@ -59,6 +71,27 @@ const KNEE: i32 = 48;
 /// The spread a sub-aperture starts with, before its cutoff has moved:
 /// one count.
 const INITIAL_SPREAD: i32 = 16 << 4;
+
+/// The part of a window's margin that does not follow the spread:
+/// [`MARGIN_FLOOR`], or [`LAST_ROW_MARGIN_FLOOR`] for a window that ends in
+/// the frame's last row.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MarginFloor(i32);
+
+impl MarginFloor {
+    pub const ORDINARY: MarginFloor = MarginFloor(MARGIN_FLOOR);
+    pub const LAST_ROW: MarginFloor = MarginFloor(LAST_ROW_MARGIN_FLOOR);
+
+    /// The floor of a window that ends in the frame's last row or not.
+    #[inline(always)]
+    pub fn of(in_last_row: bool) -> MarginFloor {
+        if in_last_row {
+            Self::LAST_ROW
+        } else {
+            Self::ORDINARY
+        }
+    }
+}
 
 impl Seed {
     pub const RESET: Seed = Seed {
@@ -71,19 +104,19 @@ impl Seed {
     }
 
     /// The next frame's hint (the previous cutoff) and admission threshold
-    /// (the hint less the margin); both `i32::MIN` before the first frame.
+    /// (the hint less the margin, whose floor is `floor`); both `i32::MIN`
+    /// before the first frame.
     #[inline(always)]
-    pub fn thresholds(&self) -> (i32, i32) {
+    pub fn thresholds(&self, floor: MarginFloor) -> (i32, i32) {
         let previous = self.previous();
         if previous == NONE {
             return (NONE, NONE);
         }
         // Half the largest recent change up to `KNEE`, one and a half times
-        // it beyond, plus a count and an eighth (`MARGIN_FLOOR`).
-        // Saturating: a cutoff is below 2^26 in magnitude, the spread below
-        // 2^30.
+        // it beyond, plus the floor. Saturating: a cutoff is below 2^26 in
+        // magnitude, the spread below 2^30.
         let spread = self.spread >> 4;
-        let margin = (spread + (spread >> 1) - spread.min(KNEE)).saturating_add(MARGIN_FLOOR);
+        let margin = (spread + (spread >> 1) - spread.min(KNEE)).saturating_add(floor.0);
         (previous, previous.saturating_sub(margin))
     }
 

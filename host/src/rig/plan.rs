@@ -61,17 +61,17 @@ pub struct CostModel {
 }
 
 impl CostModel {
-    /// Cortex-M4: CANARY 11.75 instr/px, 8x8 windows 28.82, last row 2,680.
-    pub const CORTEX_M4: CostModel = CostModel::fit(11.75, 28.82, 2680.0);
-    /// Cortex-M7: CANARY 11.71 instr/px, 8x8 windows 28.80, last row 2,616.
-    pub const CORTEX_M7: CostModel = CostModel::fit(11.71, 28.80, 2616.0);
+    /// Cortex-M4: CANARY 11.63 instr/px, 8x8 windows 28.83, last row 2,680.
+    pub const CORTEX_M4: CostModel = CostModel::fit(11.63, 28.83, 2680.0);
+    /// Cortex-M7: CANARY 11.59 instr/px, 8x8 windows 28.81, last row 2,616.
+    pub const CORTEX_M7: CostModel = CostModel::fit(11.59, 28.81, 2616.0);
     /// The STM32H743 (Cortex-M7) through its camera path: the bench's
-    /// `canary-12bit-dcmi` row (12.35 instr/px, last row 3,915: the
+    /// `canary-12bit-dcmi` row (12.20 instr/px, last row 3,915: the
     /// board's `DcmiSource` over a DMA ring, its runs, the 12-bit check)
-    /// against its whole-row CANARY (11.71, 2,616) adds 0.64 instructions
+    /// against its whole-row CANARY (11.59, 2,616) adds 0.61 instructions
     /// a pixel and 1,299 after the last pixel to the Cortex-M7's model.
     pub const STM32H743: CostModel =
-        CostModel::CORTEX_M7.with_camera_runs(11.71, 2616.0, 12.35, 3915.0);
+        CostModel::CORTEX_M7.with_camera_runs(11.59, 2616.0, 12.20, 3915.0);
 
     /// The model through the bench's two rows (see the type's documentation).
     pub const fn fit(canary: f64, windows_8x8: f64, canary_last_row: f64) -> CostModel {

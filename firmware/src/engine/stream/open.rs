@@ -5,6 +5,7 @@
 use super::admission::{FreshAdmission, FreshWindow};
 use super::Engine;
 use crate::engine::centroid::Moments;
+use crate::engine::seed::MarginFloor;
 use crate::engine::select::{preferred_capacity_of, Entry, Ties};
 use crate::engine::window::OpenWindow;
 
@@ -40,24 +41,47 @@ impl Engine<'_, '_> {
         // +0.03 instructions a pixel, 8x8 windows +0.11).
         // Likewise for a calibration without gain map or fixed threshold,
         // whose raw floors take no test of it (`FreshWindow::admission`).
+        // And for the windows that end in the frame's last row (their
+        // margin's floor, `Seed::thresholds`, an immediate in each: the
+        // floor as a value held through the loop cost 8x8 windows 0.09
+        // instructions a pixel, a test a window 0.13).
         let c = &self.config.calibration;
         let plain = c.gain.is_none() && c.threshold.is_none();
-        match (self.hint_above, plain) {
-            (true, true) => self.open_windows::<true, true>(),
-            (true, false) => self.open_windows::<true, false>(),
-            (false, true) => self.open_windows::<false, true>(),
-            (false, false) => self.open_windows::<false, false>(),
+        let last = self.opens_into_last_row();
+        match (self.hint_above, plain, last) {
+            (true, true, true) => self.open_windows::<true, true, true>(),
+            (true, false, true) => self.open_windows::<true, false, true>(),
+            (false, true, true) => self.open_windows::<false, true, true>(),
+            (false, false, true) => self.open_windows::<false, false, true>(),
+            (true, true, false) => self.open_windows::<true, true, false>(),
+            (true, false, false) => self.open_windows::<true, false, false>(),
+            (false, true, false) => self.open_windows::<false, true, false>(),
+            (false, false, false) => self.open_windows::<false, false, false>(),
         }
+    }
+
+    /// Whether the first window this row opens ends in the frame's last
+    /// row (the others of the row are taken to, which only speed depends
+    /// on: windows of one row share their height but in unusual layouts).
+    fn opens_into_last_row(&self) -> bool {
+        let windows = self.config.windows;
+        self.memory.order[..windows.len()]
+            .get(self.next_to_open)
+            .is_some_and(|&first| {
+                windows[first as usize].last_row() + 1 == self.config.camera.height
+            })
     }
 
     /// [`open_windows_of_row`](Self::open_windows_of_row), with each
     /// window's hint one above its seed's (`HINT_ABOVE`, see
-    /// `Engine::hint_above`) or not; `PLAIN` as in `FreshWindow::admission`.
+    /// `Engine::hint_above`) or not; `PLAIN` as in `FreshWindow::admission`;
+    /// `LAST_ROW`: the windows end in the frame's last row
+    /// ([`MarginFloor`]).
     /// Out of line: inlined into
     /// `Engine::row_events` it cost that ~25 instructions a call, the
     /// frame's end among them (every last row +29).
     #[inline(never)]
-    fn open_windows<const HINT_ABOVE: bool, const PLAIN: bool>(&mut self) {
+    fn open_windows<const HINT_ABOVE: bool, const PLAIN: bool, const LAST_ROW: bool>(&mut self) {
         let windows = self.config.windows;
         let fresh = FreshWindow::of(self.config.selection.rule);
         // Windows of one row mostly share N and size: the capacity of the
@@ -67,6 +91,7 @@ impl Engine<'_, '_> {
         // they cost it three instructions).
         let (mut next, mut free_len, mut open_len) =
             (self.next_to_open, self.free_len, self.open_len);
+        let floor = MarginFloor::of(LAST_ROW);
         while next < windows.len() {
             // SAFETY: `order` holds a permutation of the windows' indices
             // (`plan`), one a window, and the memory holds a sub-aperture
@@ -100,7 +125,7 @@ impl Engine<'_, '_> {
             // SAFETY: see `index`.
             let state = unsafe { self.memory.subapertures.get_unchecked(index) };
             let (hint, low) = if capacity > 0 {
-                let (hint, low) = state.seed.thresholds();
+                let (hint, low) = state.seed.thresholds(floor);
                 (hint.saturating_add(HINT_ABOVE as i32), low)
             } else {
                 (0, 0)
