@@ -19,7 +19,7 @@ use crate::link::{Client, DeviceInfo};
 #[command(
     about = "Check a device's health: silicon and errata, clocks, USB clock trimming, stack, camera interface, resets, link, the engine's row kernel",
     after_help = "Examples:\n  brightpix doctor --port /dev/ttyACM0\n  brightpix doctor --port /dev/pts/4        # a simulated device: hardware-only lines say so\n\n\
-Exit status 1 if any line is FAIL. firmware/README.md (\"Bring-up\") says what each line should read."
+Exit status 1 if any line is FAIL. firmware/boards/stm32h743/README.md (\"Bring-up\") says what each line should read."
 )]
 pub struct DoctorArgs {
     /// Serial port of the device (/dev/ttyACM0, /dev/pts/N, COM3) or unix:PATH.

@@ -34,8 +34,8 @@
 //!   capture request the board appends to `DIR/requests` (`armed-ID` once
 //!   armed on the sync line) by writing a header (synced, camera frame)
 //!   and that capture's frames into the FIFO `DIR/camera-ID.fifo`, which
-//!   the board reads through semihosting (firmware/README.md, "The
-//!   simulated camera").
+//!   the board reads through semihosting (firmware/boards/qemu/README.md,
+//!   "The simulated camera").
 
 use std::fs::File;
 use std::io::{self, Read as _, Write as _};

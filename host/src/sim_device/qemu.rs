@@ -24,7 +24,7 @@ pub fn firmware_dir() -> PathBuf {
 }
 
 /// The core QEMU emulates, and the code generation the firmware is built
-/// for: the same ELF contract on both (firmware/README.md).
+/// for: the same ELF contract on both (firmware/boards/qemu/README.md).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum QemuCpu {
     /// Cortex-M4F on `mps2-an386`: the firmware's default build.

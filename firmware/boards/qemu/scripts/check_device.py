@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""End-to-end check of the brightpix QEMU device (firmware/README.md, "Running the QEMU device").
+"""End-to-end check of the brightpix QEMU device (firmware/boards/qemu/README.md,
+"Running the QEMU device").
 
 Runs the firmware ELF in qemu-system-arm exactly as the contract says (UART0 on a unix
 socket, `--pixels FIFO` on the semihosting command line) and, with its own implementation

@@ -1,8 +1,8 @@
 """The QEMU device as the check scripts run it: the firmware ELF on the mps2-an386 board
 (Cortex-M4), UART0 on a unix socket that QEMU waits for, QEMU's stdout (the semihosting
 output: defmt frames, nothing else with -display/-monitor none) in a file, and the
-semihosting command line as firmware/README.md describes it. Standard library only; used
-by check_device.py and check_qemu.py.
+semihosting command line as firmware/boards/qemu/README.md describes it. Standard library
+only; used by check_device.py and check_qemu.py.
 """
 
 import os

@@ -4,7 +4,7 @@
 //! clock. The device reads them through `SimulatedCamera`, i.e. the same
 //! `DcmiSource` the STM32H743's DCMI feeds.
 //!
-//! The exchange with the host, in directory `DIR` (firmware/README.md,
+//! The exchange with the host, in directory `DIR` (firmware/boards/qemu/README.md,
 //! "The simulated camera"):
 //! 1. when a capture starts, the task writes one line to `DIR/requests`
 //!    (which it keeps open, each line after the last):

@@ -10,7 +10,7 @@
 //! `--camera DIR`, from the simulated camera (`camera.rs`: frames the host
 //! generates, in the camera ring at the board's frame rate). defmt goes to
 //! semihosting (QEMU's stdout). The contract with the host is in
-//! firmware/README.md, "Running the QEMU device"; the command line in
+//! firmware/boards/qemu/README.md, "Running the QEMU device"; the command line in
 //! `args.rs`.
 #![no_std]
 #![no_main]

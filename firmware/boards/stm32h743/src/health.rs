@@ -6,7 +6,7 @@
 //! ES0392 cited at each use, so a reviewer can check them against the
 //! documents without knowing embassy's PAC.
 //!
-//! NOT RUN ON HARDWARE: built only (see firmware/README.md, "Bring-up").
+//! NOT RUN ON HARDWARE: built only (see firmware/boards/stm32h743/README.md, "Bring-up").
 
 use core::cell::Cell;
 

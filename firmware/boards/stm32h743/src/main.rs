@@ -21,7 +21,7 @@
 //!   on the board's own workloads.
 //!
 //! NOT RUN ON HARDWARE: it builds; the camera source's logic is tested on
-//! the host (`tests/tests/camera_*.rs`); see firmware/README.md.
+//! the host (`tests/tests/camera_*.rs`); see firmware/boards/stm32h743/README.md.
 #![no_std]
 #![no_main]
 
