@@ -303,6 +303,29 @@ fn a_user_configuration_goes_to_the_qemu_bench_as_upload_bytes_and_raw_frames() 
         h743[1].contains(&format!("FITS one board ({:.0}%", share * 100.0)),
         "{stdout}"
     );
+    // And its results on its USB link: 7 rows of 7 results, each row's
+    // message at most 7 x 12 + 13 bytes, and the frame's end.
+    let whole = brightpix::config_file::ProcessingConfig::load(&config).unwrap();
+    let all: Vec<usize> = (0..49).collect();
+    let bytes = brightpix::rig::frame_bytes(
+        &whole,
+        &brightpix::rig::ResultBounds::of(&whole),
+        &all,
+        false,
+    );
+    assert!(bytes > 7 * (7 * 12 + 13));
+    let link = stdout
+        .lines()
+        .find(|l| l.contains("its results at 1000 Hz"))
+        .unwrap_or_else(|| panic!("{stdout}"));
+    assert!(
+        link.contains(&format!(
+            "up to {:.2} MB/s ({bytes} bytes a frame): FIT its USB full speed link ({:.0}%",
+            bytes as f64 * 1e-3,
+            bytes as f64 * 1e-1
+        )),
+        "{link}"
+    );
     let rows: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let upload = brightpix::bench::qemu::config_upload_bytes(

@@ -501,4 +501,22 @@ fn shared_rows_are_in_the_planned_loads() {
         model.frame_instructions(48 * 16, 3).round(),
         "{text}"
     );
+    // Each board's results on its link include the shared rows' checksums.
+    let whole = ProcessingConfig::load(&config).unwrap();
+    let bounds = rig::ResultBounds::of(&whole);
+    for (board, windows) in [("board-0", [0, 1, 2]), ("board-2", [6, 7, 8])] {
+        let line = text
+            .lines()
+            .find(|l| l.trim_start().starts_with(&format!("{board}:")))
+            .unwrap();
+        let bytes = rig::frame_bytes(&whole, &bounds, &windows, true);
+        assert!(
+            bytes > rig::frame_bytes(&whole, &bounds, &windows, false)
+                && line.contains(&format!(
+                    "results <= {bytes} bytes a frame, {:.2} MB/s",
+                    bytes as f64 * 1e-3
+                )),
+            "{line}"
+        );
+    }
 }

@@ -15,7 +15,7 @@ use crate::bench::qemu::{self, QemuCore, QemuRow};
 use crate::bench::workloads::{self, Workload};
 use crate::bench::{run_host, HostOptions, HostRow};
 use crate::config_file::ProcessingConfig;
-use crate::rig::CostModel;
+use crate::rig::{self, BoardKind, CostModel};
 
 #[derive(Args)]
 #[command(
@@ -399,6 +399,7 @@ fn capacity_report(
                 capacity.latency_us,
             ));
             camera_fit(&mut out, args, camera, &capacity);
+            link_fit(&mut out, path, args);
         }
     }
     if qemu_rows.iter().all(|r| r.workload != workloads::USER) {
@@ -424,6 +425,32 @@ fn capacity_report(
         out.push('\n');
     }
     out
+}
+
+/// Whether one STM32H743's results at `--camera-rate` fit its link (the
+/// configuration's own camera only: another `--camera-size` has other
+/// windows).
+fn link_fit(out: &mut String, path: &Path, args: &BenchArgs) {
+    let (Some(rate), None) = (args.camera_rate, args.camera_size) else {
+        return;
+    };
+    let Ok(config) = ProcessingConfig::load(path) else {
+        return;
+    };
+    let Some(link) = BoardKind::Stm32h743.link() else {
+        return;
+    };
+    let all: Vec<usize> = (0..config.windows.len()).collect();
+    let bytes = rig::frame_bytes(&config, &rig::ResultBounds::of(&config), &all, false) as f64;
+    let share = bytes * rate / link.bytes_per_s;
+    out.push_str(&format!(
+        "    its results at {rate} Hz: up to {:.2} MB/s ({bytes:.0} bytes a frame): {} its {} link ({:.0}% of about {:.1} MB/s; `brightpix rig plan` counts the boards both need)\n",
+        bytes * rate * 1e-6,
+        if share <= 1.0 { "FIT" } else { "do NOT fit" },
+        link.name,
+        share * 100.0,
+        link.bytes_per_s * 1e-6,
+    ));
 }
 
 /// Whether the camera of `--camera-rate` fits a board of `capacity`.

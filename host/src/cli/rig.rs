@@ -18,7 +18,6 @@ use crate::io::{
 use crate::link::Client;
 use crate::rig::{
     self, describe_load, BoardKind, CostModel, Rig, RigRun, RigStream, DCMI_MAX_PIXEL_CLOCK_HZ,
-    USB_FULL_SPEED_BYTES_PER_S,
 };
 
 #[derive(Args)]
@@ -73,7 +72,8 @@ struct PlanArgs {
     /// The boards: stm32h743 (480 MHz Cortex-M7, DCMI crop), qemu-m4 or qemu-m7.
     #[arg(long, default_value = "stm32h743", value_parser = BoardKind::parse)]
     board: BoardKind,
-    /// The camera's frame rate, Hz: each board's load, and the fewest boards that keep up.
+    /// The camera's frame rate, Hz: each board's load, and the fewest boards whose cores and
+    /// links (stm32h743: USB full speed, about 1 MB/s of results) keep up.
     #[arg(long, value_name = "HZ")]
     camera_rate: Option<f64>,
     /// Instructions per pixel measured for this configuration on whole rows (`brightpix bench
@@ -229,15 +229,14 @@ fn plan(args: PlanArgs) -> Result<()> {
             args.board,
             &model,
             args.camera_rate,
+            true,
         );
-        if let Some(busiest) = loads.iter().filter_map(|l| l.load).reduce(f64::max) {
-            if busiest > 1.0 {
-                bail!(
-                    "--shared-rows: with the shared rows the busiest board would need {:.0}% of its core: plan more boards (--boards {})",
-                    busiest * 100.0,
-                    rig.boards.len() + 1
-                );
-            }
+        if !loads.iter().all(rig::BoardLoad::keeps_up) {
+            bail!(
+                "--shared-rows: with the shared rows {}: plan more boards (--boards {})",
+                rig::busiest(&loads, args.board),
+                rig.boards.len() + 1
+            );
         }
     }
     println!(
@@ -369,6 +368,7 @@ pub(super) fn print_rig(rig: &Rig, loads: Option<&[rig::BoardLoad]>) {
                 rig.kind,
                 &model,
                 rig.camera_rate_hz,
+                !rig.shared_rows().is_empty(),
             );
             &computed
         }
@@ -384,20 +384,26 @@ pub(super) fn print_rig(rig: &Rig, loads: Option<&[rig::BoardLoad]>) {
     println!("  {}", describe_alignment(rig));
     if let Some(rate) = rig.camera_rate_hz {
         let pixel_rate = rig.whole.camera.pixel_count() as f64 * rate;
+        let link = rig.kind.link().map_or(String::new(), |l| {
+            format!(
+                "; results on {}: about {:.1} MB/s a board",
+                l.name,
+                l.bytes_per_s / 1e6
+            )
+        });
         println!(
-            "  limits: every board on the fanned-out bus sees the camera's whole pixel clock, >= {:.1} MHz at {rate} Hz (the STM32H743's DCMI: {:.0} MHz at most); results on USB full speed: about {:.1} MB/s a board",
+            "  limits: every board on the fanned-out bus sees the camera's whole pixel clock, >= {:.1} MHz at {rate} Hz (the STM32H743's DCMI: {:.0} MHz at most){link}",
             pixel_rate / 1e6,
             DCMI_MAX_PIXEL_CLOCK_HZ / 1e6,
-            USB_FULL_SPEED_BYTES_PER_S / 1e6
         );
         if pixel_rate > DCMI_MAX_PIXEL_CLOCK_HZ {
             println!("  warning: the camera's pixel clock exceeds what a DCMI can sample: split the camera's taps over boards");
         }
-        if loads.iter().any(|l| {
-            l.result_bytes_per_s
-                .is_some_and(|b| b > USB_FULL_SPEED_BYTES_PER_S)
-        }) {
-            println!("  warning: at the longest encoding a board's results exceed USB full speed: use more boards or a lower rate");
+        if loads.iter().any(|l| l.link_load.is_some_and(|x| x > 1.0)) {
+            println!(
+                "  warning: {}: plan more boards or a lower rate",
+                rig::busiest(loads, rig.kind)
+            );
         }
     }
 }
@@ -714,6 +720,7 @@ impl LiveBoards {
             rig.kind,
             &model,
             rig.camera_rate_hz,
+            !rig.shared_rows().is_empty(),
         );
         LiveBoards {
             done: vec![0; rig.boards.len()],

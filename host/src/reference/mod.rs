@@ -230,6 +230,15 @@ impl Reference {
         centre_of_gravity(s, window, &pixels, &weights, self.min_flux, reference)
     }
 
+    /// §2 for every pixel of sub-aperture `s`'s window, in raster order
+    /// (`frame` a whole camera frame).
+    pub fn calibrated(&self, frame: &[u16], s: usize) -> Vec<i128> {
+        self.calibrate_window(frame, self.windows[s])
+            .into_iter()
+            .map(|pixel| pixel.p)
+            .collect()
+    }
+
     /// §2 for every pixel of `window`.
     fn calibrate_window(&self, frame: &[u16], window: SubapertureWindow) -> Vec<WindowPixel> {
         let mut pixels = Vec::with_capacity(window.pixel_count());

@@ -403,8 +403,16 @@ pub fn describe_load(load: &BoardLoad, board: &RigBoard) -> String {
             (1.0 - l) * 100.0
         );
     }
+    let _ = write!(
+        text,
+        "; results <= {} bytes a frame",
+        load.result_bytes_per_frame
+    );
     if let Some(b) = load.result_bytes_per_s {
-        let _ = write!(text, "; results <= {:.2} MB/s", b / 1e6);
+        let _ = write!(text, ", {:.2} MB/s", b / 1e6);
+        if let Some(l) = load.link_load {
+            let _ = write!(text, " ({:.0}% of its link)", l * 100.0);
+        }
     }
     text
 }

@@ -10,22 +10,25 @@
 //! |---------|---------------------------------------------------------------------|
 //! | `part`  | [`Rectangle`] and a board's configuration cut from the whole camera's |
 //! | `plan`  | board kinds (crop rules, clocks), the bench's cost model, the split |
+//! | `link`  | what a board's results take on its link to the host                 |
 //! | `file`  | `rig.toml`: a rig people can read and edit, checked on load        |
 //! | `merge` | the boards' outcomes put together by frame number                   |
 //! | `run`   | configure, stream and verify K devices as one                       |
 
 mod file;
+mod link;
 mod merge;
 mod part;
 mod plan;
 mod run;
 
 pub use file::{describe_load, Rig, RigBoard, RigError, RigSync};
+pub use link::{frame_bytes, Link, ResultBounds, SLOPE_ENTRY_MAX_BYTES, USB_FULL_SPEED};
 pub use merge::{BoardCounts, MergedFrame, Merger};
 pub use part::{board_config, Rectangle};
 pub use plan::{
-    loads, plan, plan_keeping_up, BoardKind, BoardLoad, BoardShare, CostModel, Cut, Plan,
-    PlanError, DCMI_MAX_PIXEL_CLOCK_HZ, SLOPE_ENTRY_MAX_BYTES, USB_FULL_SPEED_BYTES_PER_S,
+    busiest, loads, plan, plan_keeping_up, BoardKind, BoardLoad, BoardShare, CostModel, Cut, Plan,
+    PlanError, DCMI_MAX_PIXEL_CLOCK_HZ,
 };
 pub use run::{
     check_configurations, configure, stream, BoardRun, EdgeCheck, RigRun, RigStart, RigStartError,

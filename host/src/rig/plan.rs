@@ -11,16 +11,9 @@ use brightpix_firmware::camera::crop::{frame_check, DCMI_WIDTH_MULTIPLE};
 use brightpix_firmware::camera::{dcmi_check, DataWidth};
 use brightpix_protocol::{Camera, Crop, SubapertureWindow};
 
+use super::link::{self, Link, ResultBounds};
 use super::part::Rectangle;
 use crate::config_file::ProcessingConfig;
-
-/// The USB link of an STM32H743 board without an external PHY: full speed,
-/// 12 Mbit/s on the wire; CDC-ACM bulk transfers carry about 1 MB/s.
-pub const USB_FULL_SPEED_BYTES_PER_S: f64 = 1.0e6;
-
-/// A `SlopeEntry` at its longest on the wire (postcard varints: index 3,
-/// two slopes 5 each, flux 10, valid 1); the usual entry takes about 12.
-pub const SLOPE_ENTRY_MAX_BYTES: usize = 24;
 
 /// The DCMI samples PIXCLK with HCLK and needs its period above 2.5 HCLK
 /// periods: at the H743's 240 MHz HCLK, 96 MHz; ST's datasheet gives 80 MHz
@@ -166,6 +159,15 @@ impl BoardKind {
         }
     }
 
+    /// The link that carries its results to the host; `None` for an
+    /// emulated board (a pseudo-terminal, no rate of its own).
+    pub fn link(self) -> Option<Link> {
+        match self {
+            BoardKind::Stm32h743 => Some(link::USB_FULL_SPEED),
+            BoardKind::QemuM4 | BoardKind::QemuM7 => None,
+        }
+    }
+
     pub fn cost_model(self) -> CostModel {
         match self {
             BoardKind::Stm32h743 => CostModel::STM32H743,
@@ -228,8 +230,20 @@ pub struct BoardLoad {
     /// Fraction of the core's cycles at the camera rate (one instruction a
     /// cycle), when both are known.
     pub load: Option<f64>,
-    /// Results on the link, bytes per second at the longest encoding.
+    /// Results on the link, bytes a frame: each result at the largest
+    /// slopes and flux its configuration allows ([`link::frame_bytes`]).
+    pub result_bytes_per_frame: usize,
+    /// The same a second at the camera rate.
     pub result_bytes_per_s: Option<f64>,
+    /// Fraction of the board's link those take, when both are known.
+    pub link_load: Option<f64>,
+}
+
+impl BoardLoad {
+    /// Whether the board keeps up: its core and its link, where known.
+    pub fn keeps_up(&self) -> bool {
+        self.load.is_none_or(|l| l <= 1.0) && self.link_load.is_none_or(|l| l <= 1.0)
+    }
 }
 
 /// How the plan cut the sensor.
@@ -449,13 +463,29 @@ pub fn plan(
     }
 }
 
-/// What each board of `shares` is predicted to do at `camera_rate` Hz.
+/// What each board of `shares` is predicted to do at `camera_rate` Hz;
+/// `edge_rows`: the boards share rows and send their checksums every frame.
 pub fn loads(
     config: &ProcessingConfig,
     shares: &[BoardShare],
     kind: BoardKind,
     model: &CostModel,
     camera_rate: Option<f64>,
+    edge_rows: bool,
+) -> Vec<BoardLoad> {
+    let bounds = ResultBounds::of(config);
+    loads_with(config, &bounds, shares, kind, model, camera_rate, edge_rows)
+}
+
+/// [`loads`] with the results' bounds computed once.
+fn loads_with(
+    config: &ProcessingConfig,
+    bounds: &ResultBounds,
+    shares: &[BoardShare],
+    kind: BoardKind,
+    model: &CostModel,
+    camera_rate: Option<f64>,
+    edge_rows: bool,
 ) -> Vec<BoardLoad> {
     shares
         .iter()
@@ -465,22 +495,27 @@ pub fn loads(
             let last = windows.iter().map(|w| w.last_row()).max().unwrap_or(0);
             let in_last_row = windows.iter().filter(|w| w.last_row() == last).count();
             let instructions = model.frame_instructions(s.rectangle.pixels(), s.windows.len());
+            let result_bytes_per_frame = link::frame_bytes(config, bounds, &s.windows, edge_rows);
+            let result_bytes_per_s = camera_rate.map(|rate| result_bytes_per_frame as f64 * rate);
             BoardLoad {
                 instructions_per_frame: instructions,
                 last_row_instructions: model.last_row_instructions(in_last_row),
                 load: camera_rate
                     .zip(kind.clock_mhz())
                     .map(|(rate, mhz)| instructions * rate / (mhz * 1e6)),
-                result_bytes_per_s: camera_rate
-                    .map(|rate| (s.windows.len() * SLOPE_ENTRY_MAX_BYTES) as f64 * rate),
+                result_bytes_per_frame,
+                result_bytes_per_s,
+                link_load: result_bytes_per_s
+                    .zip(kind.link())
+                    .map(|(bytes, link)| bytes / link.bytes_per_s),
             }
         })
         .collect()
 }
 
 /// Plans with the fewest boards (from `boards` up) whose every board keeps
-/// up with `camera_rate`; `boards` itself when the rate or the clock is
-/// unknown. The error names the fix.
+/// up with `camera_rate`, its core and its link ([`BoardLoad::keeps_up`]);
+/// `boards` itself when the rate is unknown. The error names the fix.
 pub fn plan_keeping_up(
     config: &ProcessingConfig,
     boards: usize,
@@ -488,30 +523,55 @@ pub fn plan_keeping_up(
     model: &CostModel,
     camera_rate: Option<f64>,
 ) -> Result<(Plan, Vec<BoardLoad>), PlanError> {
+    let bounds = ResultBounds::of(config);
     let plan_k = |k: usize| -> Result<(Plan, Vec<BoardLoad>), PlanError> {
         let p = plan(config, k, kind, model)?;
-        let l = loads(config, &p.shares, kind, model, camera_rate);
+        let l = loads_with(config, &bounds, &p.shares, kind, model, camera_rate, false);
         Ok((p, l))
     };
     let (p, l) = plan_k(boards)?;
-    let busiest = l.iter().filter_map(|b| b.load).fold(0.0, f64::max);
-    if busiest <= 1.0 {
+    if l.iter().all(BoardLoad::keeps_up) {
         return Ok((p, l));
     }
-    let enough = (boards + 1..=boards.max(1) * 64)
+    let enough = (boards + 1..=boards.max(1) * 256)
         .take_while(|&k| k <= config.windows.len())
-        .find(|&k| plan_k(k).is_ok_and(|(_, l)| l.iter().all(|b| b.load.is_none_or(|x| x <= 1.0))));
-    let rate = camera_rate.unwrap_or(0.0);
-    let mhz = kind.clock_mhz().unwrap_or(0.0);
+        .find(|&k| plan_k(k).is_ok_and(|(_, l)| l.iter().all(BoardLoad::keeps_up)));
     Err(PlanError::TooSlow(format!(
-        "{boards} {} boards cannot keep up with this camera at {rate} Hz: the busiest would need {:.0}% of its {mhz} MHz core; {}",
+        "{boards} {} boards cannot keep up with this camera at {} Hz: {}; {}",
         kind.name(),
-        busiest * 100.0,
+        camera_rate.unwrap_or(0.0),
+        busiest(&l, kind),
         match enough {
             Some(k) => format!("{k} boards keep up (--boards {k}), or a lower camera rate"),
             None => "no split of these windows keeps up: lower the camera rate".to_string(),
         }
     )))
+}
+
+/// What the busiest boards of `loads` would need of their core and link.
+pub fn busiest(loads: &[BoardLoad], kind: BoardKind) -> String {
+    let most = |f: fn(&BoardLoad) -> Option<f64>| loads.iter().filter_map(f).reduce(f64::max);
+    let mut parts = Vec::new();
+    if let (Some(core), Some(mhz)) = (most(|l| l.load), kind.clock_mhz()) {
+        parts.push(format!(
+            "the busiest would need {:.0}% of its {mhz} MHz core",
+            core * 100.0
+        ));
+    }
+    if let (Some(link), Some(bytes), Some(spec)) = (
+        most(|l| l.link_load),
+        most(|l| l.result_bytes_per_s),
+        kind.link(),
+    ) {
+        parts.push(format!(
+            "the one with most results sends up to {:.2} MB/s, {:.0}% of its {} link (about {:.1} MB/s)",
+            bytes / 1e6,
+            link * 100.0,
+            spec.name,
+            spec.bytes_per_s / 1e6
+        ));
+    }
+    parts.join(", and ")
 }
 
 #[cfg(test)]
@@ -562,31 +622,6 @@ mod tests {
         }
         assert_eq!(BoardKind::Stm32h743.cost_model(), CostModel::STM32H743);
         assert_eq!(BoardKind::QemuM7.cost_model(), CostModel::CORTEX_M7);
-    }
-
-    /// A worst-case result's bytes on the wire, from the encoder itself.
-    #[test]
-    fn slope_entry_at_its_longest() {
-        use brightpix_protocol::wire::{encode, DeviceMessage, SlopeEntry, SlopeList};
-        let worst = SlopeEntry {
-            index: u16::MAX,
-            slope_x: i32::MIN,
-            slope_y: i32::MIN,
-            flux: i64::MIN,
-            valid: true,
-        };
-        let size = |n: usize| {
-            let mut results = SlopeList::new();
-            for _ in 0..n {
-                results.push(worst).unwrap();
-            }
-            let mut buf = [0u8; 512];
-            encode(&DeviceMessage::Slopes { frame: 0, results }, &mut buf)
-                .unwrap()
-                .len()
-        };
-        // COBS adds a byte per 254 at most: none between one and two entries.
-        assert_eq!(size(2) - size(1), SLOPE_ENTRY_MAX_BYTES);
     }
 
     #[test]
@@ -705,6 +740,16 @@ mod tests {
         assert!(BoardKind::QemuM4.check_crop(&short, &camera(8)).is_ok());
     }
 
+    /// The K of "(--boards K)" in a plan's error.
+    fn boards_named(text: &str) -> usize {
+        text.split("(--boards ")
+            .nth(1)
+            .and_then(|t| t.split(|c: char| !c.is_ascii_digit()).next())
+            .unwrap()
+            .parse()
+            .unwrap()
+    }
+
     #[test]
     fn too_slow_names_the_boards_needed() {
         // 240x240 of 16x16 windows (the bench's OCAM2K-class workload) at 2 kHz: 115 Mpx/s.
@@ -717,18 +762,43 @@ mod tests {
             text.contains("cannot keep up") && text.contains("boards keep up (--boards"),
             "{text}"
         );
-        let k: usize = text
-            .split("(--boards ")
-            .nth(1)
-            .and_then(|t| t.split(|c: char| !c.is_ascii_digit()).next())
-            .unwrap()
-            .parse()
-            .unwrap();
+        let k = boards_named(&text);
         let (_, loads) =
             plan_keeping_up(&config, k, BoardKind::Stm32h743, &model, Some(2000.0)).unwrap();
-        assert!(loads.iter().all(|l| l.load.unwrap() <= 1.0));
+        assert!(loads.iter().all(BoardLoad::keeps_up));
         assert!(
             plan_keeping_up(&config, k - 1, BoardKind::Stm32h743, &model, Some(2000.0)).is_err()
         );
+    }
+
+    /// A 240x240 12-bit camera at 1 kHz: two STM32H743 cores keep up, but
+    /// not their USB links, so the plan asks for the boards the links need.
+    #[test]
+    fn the_link_counts_as_well_as_the_core() {
+        let mut config = crate::bench::workloads::ocam240_config();
+        config.camera.bit_depth = 12;
+        let (kind, model) = (BoardKind::Stm32h743, CostModel::STM32H743);
+        let two = plan(&config, 2, kind, &model).unwrap();
+        let loads = loads(&config, &two.shares, kind, &model, Some(1000.0), false);
+        assert!(loads.iter().all(|l| l.load.unwrap() <= 1.0));
+        assert!(loads.iter().any(|l| l.link_load.unwrap() > 1.0));
+        let text = plan_keeping_up(&config, 2, kind, &model, Some(1000.0))
+            .unwrap_err()
+            .to_string();
+        assert!(text.contains("of its USB full speed link"), "{text}");
+        let k = boards_named(&text);
+        let (_, loads) = plan_keeping_up(&config, k, kind, &model, Some(1000.0)).unwrap();
+        assert!(loads.iter().all(|l| l.link_load.unwrap() <= 1.0));
+        // The emulated boards have no link rate of their own.
+        let qemu = loads_with(
+            &config,
+            &ResultBounds::of(&config),
+            &two.shares,
+            BoardKind::QemuM7,
+            &model,
+            Some(1000.0),
+            false,
+        );
+        assert!(qemu.iter().all(|l| l.link_load.is_none()));
     }
 }
