@@ -232,6 +232,20 @@ fn plan_check_and_stream_from_the_command_line() {
     );
     let (ok, text) = run(&["rig", "check", "--rig", rig_file.to_str().unwrap()]);
     assert!(ok && text.contains("board-2"), "{text}");
+    assert!(!text.contains("warning"), "{text}");
+    // The same rig edited to a rate whose results overflow a board's USB
+    // link: checked, with the link named.
+    let fast = dir.join("fast.toml");
+    std::fs::write(
+        &fast,
+        written.replace("camera_rate_hz = 2000", "camera_rate_hz = 40000"),
+    )
+    .unwrap();
+    let (ok, text) = run(&["rig", "check", "--rig", fast.to_str().unwrap()]);
+    assert!(
+        ok && text.contains("warning: ") && text.contains("of its USB full speed link"),
+        "{text}"
+    );
 
     // More frames than one batch (256): the merge and the reference go on
     // across batches.
