@@ -62,3 +62,61 @@ fn a_long_row_of_results_is_split_into_messages() {
         assert_eq!(slopes_of(&replies, k as u32).1, 2, "32 + 8 results");
     }
 }
+
+/// What the device sends for a frame's results stays within what `rig
+/// plan` counts for the board's link (`brightpix::rig::frame_bytes`: the
+/// same messages, each result at its configuration's bound), with one
+/// `Slopes` message per row of sub-apertures and 32 results.
+#[test]
+fn a_frame_of_results_takes_no_more_than_the_rig_counts() {
+    let long_row = Owned {
+        camera: Camera {
+            width: 160,
+            height: 8,
+            bit_depth: 16,
+        },
+        windows: grid(40, 1, 4, 8),
+        ..config_a()
+    };
+    for owned in [config_a(), config_filtered(), long_row] {
+        let config = owned.view();
+        let bounds = brightpix::rig::ResultBounds::of(&owned);
+        let all: Vec<usize> = (0..owned.windows.len()).collect();
+        let counted = brightpix::rig::frame_bytes(&owned, &bounds, &all, false);
+        let (mut storage, mut host, link) = setup(SIZES, 1000);
+        let mut device = Device::new(link, LinkOnly, storage.buffers(), "t");
+        host.hello();
+        configure(&mut host, &mut device, config, 1);
+        // A saturated pixel in each window's far corner (the largest
+        // slopes), then spots on noise (within ~2% of the count for
+        // `config_a`).
+        let mut corners = vec![0u16; owned.camera.pixel_count()];
+        for w in &owned.windows {
+            let at = w.last_row() as usize * owned.camera.width as usize;
+            corners[at + (w.x + w.width - 1) as usize] = owned.camera.max_raw();
+        }
+        let mut all_frames = vec![corners];
+        all_frames.extend(frames(owned.camera, 3, 9));
+        for (k, f) in all_frames.iter().enumerate() {
+            host.frame(u32::MAX - k as u32, f, 480);
+            run(&mut device);
+            let sent = host.link.borrow().output.len();
+            let replies = host.replies();
+            assert_eq!(errors(&replies), []);
+            let rows = owned.windows.iter().fold(Vec::new(), |mut rows, w| {
+                if !rows.contains(&w.last_row()) {
+                    rows.push(w.last_row());
+                }
+                rows
+            });
+            let per_row = owned.windows.len() / rows.len();
+            let messages = rows.len() * per_row.div_ceil(SLOPES_PER_MESSAGE);
+            assert_eq!(
+                slopes_of(&replies, u32::MAX - k as u32).1,
+                messages,
+                "{replies:?}"
+            );
+            assert!(sent <= counted, "{sent} bytes sent, {counted} counted");
+        }
+    }
+}
