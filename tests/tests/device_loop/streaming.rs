@@ -34,9 +34,9 @@ fn streamed_slopes_equal_a_direct_engine_run() {
     assert_eq!((s.crc_errors, s.decode_errors, s.frames_dropped), (0, 0, 0));
 }
 
-#[test]
-fn a_long_row_of_results_is_split_into_messages() {
-    let owned = Owned {
+/// One row of 40 windows: more results than one message holds.
+fn long_row() -> Owned {
+    Owned {
         camera: Camera {
             width: 160,
             height: 8,
@@ -44,7 +44,12 @@ fn a_long_row_of_results_is_split_into_messages() {
         },
         windows: grid(40, 1, 4, 8),
         ..config_a()
-    };
+    }
+}
+
+#[test]
+fn a_long_row_of_results_is_split_into_messages() {
+    let owned = long_row();
     let config = owned.view();
     let frames = frames(owned.camera, 2, 5);
     let expected = direct(config, &frames);
@@ -69,16 +74,7 @@ fn a_long_row_of_results_is_split_into_messages() {
 /// `Slopes` message per row of sub-apertures and 32 results.
 #[test]
 fn a_frame_of_results_takes_no_more_than_the_rig_counts() {
-    let long_row = Owned {
-        camera: Camera {
-            width: 160,
-            height: 8,
-            bit_depth: 16,
-        },
-        windows: grid(40, 1, 4, 8),
-        ..config_a()
-    };
-    for owned in [config_a(), config_filtered(), long_row] {
+    for owned in [config_a(), config_filtered(), long_row()] {
         let config = owned.view();
         let bounds = brightpix::rig::ResultBounds::of(&owned);
         let all: Vec<usize> = (0..owned.windows.len()).collect();
