@@ -161,6 +161,31 @@ fn bad_arguments_are_refused_before_any_work() {
             "--host-only",
         ),
         (vec!["--port", "/nonexistent/tty"], "/nonexistent/tty"),
+        // The link test (--port --link): its figures are checked before
+        // the port is opened.
+        (vec!["--link"], "--port"),
+        (
+            vec!["--port", "/nonexistent/tty", "--link", "--workload", "x"],
+            "--workload",
+        ),
+        (
+            vec!["--port", "/nonexistent/tty", "--link", "--link-bytes", "0"],
+            "--link-bytes 0: 1 to 16777216",
+        ),
+        (
+            vec![
+                "--port",
+                "/nonexistent/tty",
+                "--link",
+                "--link-chunk",
+                "961",
+            ],
+            "--link-chunk 961: 1 to 960",
+        ),
+        (
+            vec!["--port", "/nonexistent/tty", "--link-bytes", "9"],
+            "--link",
+        ),
         (
             vec!["--config", "/nonexistent/c.toml", "--host-only"],
             "/nonexistent/c.toml",

@@ -534,3 +534,128 @@ fn shared_rows_are_in_the_planned_loads() {
         );
     }
 }
+
+/// The link as a device measures it (`bench --port --link`, here an
+/// in-process device on a pseudo-terminal) is what `rig plan --link-rate`
+/// plans with: the rate goes into the rig file, `rig check` counts it from
+/// there, and a slower link needs more boards.
+#[test]
+fn a_measured_link_rate_plans_the_rig() {
+    let dir = common::scratch("rig", "link-rate");
+    let config = common::small_wfs_config(&dir);
+    let device = InProcessDevice::start_pty().unwrap();
+    let json = dir.join("link.json");
+    let (ok, text) = run(&[
+        "bench",
+        "--port",
+        device.port(),
+        "--link",
+        "--link-bytes",
+        "8000000",
+        "--link-chunk",
+        "960",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    assert!(
+        text.contains(
+            "8000000 fill bytes in 8334 messages of up to 960 bytes, intact and in order"
+        ),
+        "{text}"
+    );
+    let figures: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let test = &figures["link_test"];
+    // Each message: the fill, its offset, COBS, CRC and delimiter.
+    let link_bytes = test["link_bytes"].as_u64().unwrap();
+    assert!(
+        link_bytes > 8_000_000 && link_bytes < 8_000_000 + 8334 * 16,
+        "{figures}"
+    );
+    let measured = test["link_mb_per_s"]
+        .as_f64()
+        .unwrap_or_else(|| panic!("8 MB not timed: {figures}"));
+    let rate = format!("{measured:.3}");
+    assert!(text.contains(&format!("--link-rate {rate}")), "{text}");
+
+    // Planned with the measured rate: kept in the rig file, and `rig
+    // check` counts it from there.
+    let rig_file = dir.join("rig.toml");
+    let (ok, text) = run(&[
+        "rig",
+        "plan",
+        "--config",
+        config.to_str().unwrap(),
+        "--boards",
+        "3",
+        "--camera-rate",
+        "2000",
+        "--link-rate",
+        &rate,
+        "--out",
+        rig_file.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    let written = std::fs::read_to_string(&rig_file).unwrap();
+    assert!(
+        written.contains(&format!("link_mb_per_s = {}", rate.parse::<f64>().unwrap())),
+        "{written}"
+    );
+    assert_eq!(
+        Rig::load(&rig_file).unwrap().link_mb_per_s,
+        Some(rate.parse().unwrap())
+    );
+    let (ok, text) = run(&["rig", "check", "--rig", rig_file.to_str().unwrap()]);
+    assert!(
+        ok && text.contains("results on its measured link: about") && !text.contains("warning"),
+        "{text}"
+    );
+
+    // A link of 0.2 MB/s: one board's results (0.3 MB/s at 2 kHz)
+    // overflow it, the plan names more boards, and those keep up.
+    let slow = |boards: &str| {
+        run(&[
+            "rig",
+            "plan",
+            "--config",
+            config.to_str().unwrap(),
+            "--boards",
+            boards,
+            "--camera-rate",
+            "2000",
+            "--link-rate",
+            "0.2",
+        ])
+    };
+    let (ok, text) = slow("1");
+    assert!(
+        !ok && text.contains("of its measured link (about 0.20 MB/s)"),
+        "{text}"
+    );
+    let more = text
+        .split(" boards keep up (--boards ")
+        .nth(1)
+        .and_then(|t| t.split(')').next())
+        .unwrap_or_else(|| panic!("no count named: {text}"));
+    assert!(more.parse::<usize>().unwrap() > 1, "{text}");
+    let (ok, text) = slow(more);
+    assert!(ok && text.contains("link_mb_per_s = 0.2"), "{text}");
+    // Not a rate: refused before anything is planned.
+    let (ok, text) = run(&[
+        "rig",
+        "plan",
+        "--config",
+        config.to_str().unwrap(),
+        "--boards",
+        "3",
+        "--link-rate",
+        "0",
+    ]);
+    assert!(
+        !ok && text.contains("--link-rate 0: must be a positive number of MB/s"),
+        "{text}"
+    );
+    drop(device);
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -147,6 +147,7 @@ class Rig:
         *,
         board: Literal["stm32h743", "qemu-m4", "qemu-m7"] = "stm32h743",
         camera_rate: float | None = None,
+        link_rate: float | None = None,
     ) -> Rig: ...
     @staticmethod
     def load(path: StrPath) -> Rig: ...

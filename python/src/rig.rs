@@ -34,22 +34,36 @@ impl PyRig {
     /// (``"stm32h743"``, ``"qemu-m4"``, ``"qemu-m7"``): row bands (column
     /// strips when rows cannot balance) balanced by the bench's cost model;
     /// with ``camera_rate`` (Hz), a ``ValueError`` naming the boards needed
-    /// when these cannot keep up.
+    /// when these cannot keep up, their cores or their links: each board's
+    /// results on its own link (the STM32H743's USB full speed, about 1
+    /// MB/s), or on one of ``link_rate`` MB/s as measured
+    /// (``brightpix bench --port PORT --link``).
     #[staticmethod]
-    #[pyo3(signature = (config, boards, *, board = "stm32h743", camera_rate = None))]
+    #[pyo3(signature = (config, boards, *, board = "stm32h743", camera_rate = None, link_rate = None))]
     fn plan(
         config: &Bound<'_, PyConfig>,
         boards: usize,
         board: &str,
         camera_rate: Option<f64>,
+        link_rate: Option<f64>,
     ) -> PyResult<Self> {
         let kind = BoardKind::parse(board).map_err(PyValueError::new_err)?;
+        let model = match link_rate {
+            None => kind.cost_model(),
+            Some(r) if r.is_finite() && r > 0.0 => kind.cost_model().with_measured_link(r * 1e6),
+            Some(r) => {
+                return Err(PyValueError::new_err(format!(
+                    "link_rate {r}: must be a positive number of MB/s"
+                )))
+            }
+        };
         let whole = config.get().inner.clone();
-        let (plan, _) = rig::plan_keeping_up(&whole, boards, kind, &kind.cost_model(), camera_rate)
+        let (plan, _) = rig::plan_keeping_up(&whole, boards, kind, &model, camera_rate)
             .map_err(|e| PyValueError::new_err(e.to_string()))?;
-        Rig::from_plan(whole, kind, camera_rate, &plan)
-            .map(|inner| PyRig { inner })
-            .map_err(PyValueError::new_err)
+        let mut inner =
+            Rig::from_plan(whole, kind, camera_rate, &plan).map_err(PyValueError::new_err)?;
+        inner.link_mb_per_s = link_rate;
+        Ok(PyRig { inner })
     }
 
     /// Load and check a rig file (``brightpix rig plan --out``).

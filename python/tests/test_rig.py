@@ -54,3 +54,20 @@ def test_plan_refusals(repo) -> None:
     rig = brightpix.Rig.plan(config, 2)
     with pytest.raises(ValueError, match="ports: 1 given for 2 boards"):
         rig.stream(np.zeros((1, 112, 112), np.uint16), ports=["/dev/null"])
+
+
+def test_plan_counts_a_measured_link(repo) -> None:
+    config = brightpix.Config.load(repo / "examples/canary.toml")
+    # One STM32H743 carries CANARY at 1 kHz on its USB link (about 1 MB/s);
+    # on a link measured at 0.2 MB/s its results need more boards.
+    assert len(brightpix.Rig.plan(config, 1, camera_rate=1000.0).boards) == 1
+    with pytest.raises(
+        ValueError, match=r"of its measured link.*; (\d+) boards keep up"
+    ) as refused:
+        brightpix.Rig.plan(config, 1, camera_rate=1000.0, link_rate=0.2)
+    enough = int(re.search(r"; (\d+) boards keep up", str(refused.value)).group(1))
+    assert enough >= 2
+    rig = brightpix.Rig.plan(config, enough, camera_rate=1000.0, link_rate=0.2)
+    assert len(rig.boards) == enough
+    with pytest.raises(ValueError, match="link_rate 0: must be a positive number of MB/s"):
+        brightpix.Rig.plan(config, 1, link_rate=0.0)

@@ -71,6 +71,7 @@ impl HostSide for Link {
                     DeviceMessage::EdgeRows { frame, first, last } => {
                         Reply::EdgeRows(frame, first, last)
                     }
+                    DeviceMessage::LinkFill { offset, .. } => panic!("link test fill at {offset}"),
                 });
             }
         }

@@ -512,7 +512,9 @@ fn rig_capture_in_qemu_is_aligned_by_the_sync_line_and_not_without() {
 /// exactly: the floor's slopes equal the engine's on every frame (checked
 /// on the board), the counts are instructions and consistent, and the
 /// device's configuration survives the bench: same digest, and frames
-/// streamed afterwards are bit-exact without configuring again.
+/// streamed afterwards are bit-exact without configuring again. Between
+/// the two, the link test (`bench --port --link`'s request) on the same
+/// firmware: its fill arrives intact and as counted.
 #[test]
 fn bench_port_counts_instructions_and_keeps_the_configuration() {
     use brightpix::cli::bench_port::{self, PortBench};
@@ -659,9 +661,17 @@ fn bench_port_counts_instructions_and_keeps_the_configuration() {
     assert!(w["mpx_per_s"].is_null(), "no Mpx/s from instructions");
     assert_eq!(json["config_digest"], serde_json::json!(digest));
 
+    // The link test (PROTOCOL.md §15) on the real firmware: the fill
+    // arrives intact, counted as sent.
+    let mut client = connect(&device);
+    let link = client
+        .link_test(4_000, 100)
+        .unwrap_or_else(|e| panic!("link test: {e:#}"));
+    assert_eq!((link.bytes, link.messages), (4_000, 40));
+    assert!(link.link_bytes > 4_000 && link.link_bytes < 4_000 + 40 * 16);
+
     // The configuration is intact: same digest, and streaming without
     // configuring again is bit-exact.
-    let mut client = connect(&device);
     assert_eq!(client.status().unwrap().config_digest, digest);
     let view = case.config.view();
     let run = brightpix::sil::stream_and_verify(&mut client, &view, &case.frames[..20], 500, 5);

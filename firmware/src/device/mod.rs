@@ -39,11 +39,13 @@
 //!
 //! Here: the loop, the session and the requests; in `upload`, a
 //! configuration's upload into the staging slot; in `pixels`, frames into
-//! the engine and results back; in `bench`, the bench request.
+//! the engine and results back; in `bench`, the bench request; in
+//! `link_test`, the link test.
 
 pub mod bench;
 mod capture;
 mod fmt;
+mod link_test;
 mod pixels;
 pub mod source;
 pub mod storage;
@@ -657,6 +659,10 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
                 Err(e) => Err(DeviceError::Bench(e)),
             },
             HostMessage::StopCapture => Ok(self.stop_capture(source, engine).await?),
+            HostMessage::LinkTest { bytes, chunk } => match self.check_link_test(bytes, chunk) {
+                Ok(()) => Ok(self.link_test(bytes, chunk).await?),
+                Err(e) => Err(DeviceError::LinkTest(e)),
+            },
         };
         match reply {
             Ok(ack) => self.send(&DeviceMessage::Ack(ack)).await?,

@@ -15,7 +15,7 @@ use crate::bench::qemu::{self, QemuCore, QemuRow};
 use crate::bench::workloads::{self, Workload};
 use crate::bench::{run_host, HostOptions, HostRow};
 use crate::config_file::ProcessingConfig;
-use crate::rig::{self, BoardKind, CostModel};
+use crate::rig::{self, CostModel};
 
 #[derive(Args)]
 #[command(
@@ -57,6 +57,18 @@ pub struct BenchArgs {
     /// With --port: the one workload to measure (default: every workload the board has).
     #[arg(long, value_name = "NAME", requires = "port")]
     workload: Option<String>,
+    /// With --port: time the device's link to the host instead (PROTOCOL.md §15): the device sends
+    /// fill bytes as fast as the link takes them; a board's results take that link, and
+    /// `brightpix rig plan --link-rate` takes the rate measured.
+    #[arg(long, requires = "port", conflicts_with_all = ["workload", "frames"])]
+    link: bool,
+    /// With --link: fill bytes, 1 to 16777216 [default: 1000000, about 1 s of USB full speed;
+    /// QEMU's UART carries about 20 KB/s].
+    #[arg(long, value_name = "N", requires = "link")]
+    link_bytes: Option<u32>,
+    /// With --link: fill bytes a message, 1 to 960 [default: 256].
+    #[arg(long, value_name = "N", requires = "link")]
+    link_chunk: Option<u16>,
     /// With --port: the longest wait for one workload's report, seconds (the board measures in silence;
     /// QEMU under -icount takes tens of seconds for some).
     #[arg(long, value_name = "S", default_value_t = 600.0, requires = "port")]
@@ -123,6 +135,15 @@ fn parse_core(text: &str) -> Result<QemuCore, String> {
 }
 
 pub fn run(args: BenchArgs) -> Result<()> {
+    if let (Some(port), true) = (&args.port, args.link) {
+        super::bench_link::run(&super::bench_link::LinkBench {
+            port,
+            bytes: args.link_bytes.unwrap_or(1_000_000),
+            chunk: args.link_chunk.unwrap_or(256),
+            json: args.json.as_deref(),
+        })?;
+        return Ok(());
+    }
     if let Some(port) = &args.port {
         let frames = match &args.frames {
             None => 0,
@@ -437,7 +458,7 @@ fn link_fit(out: &mut String, path: &Path, args: &BenchArgs) {
     let Ok(config) = ProcessingConfig::load(path) else {
         return;
     };
-    let Some(link) = BoardKind::Stm32h743.link() else {
+    let Some(link) = CostModel::STM32H743.link else {
         return;
     };
     let all: Vec<usize> = (0..config.windows.len()).collect();

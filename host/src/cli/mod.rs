@@ -2,6 +2,7 @@
 
 mod all_invalid;
 mod bench;
+mod bench_link;
 pub mod bench_port;
 mod capture;
 mod check_config;

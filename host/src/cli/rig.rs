@@ -82,6 +82,11 @@ struct PlanArgs {
     /// `canary-12bit-dcmi` row).
     #[arg(long, value_name = "X")]
     instr_per_px: Option<f64>,
+    /// The boards' results link, MB/s, as measured (`brightpix bench --port PORT --link`) instead
+    /// of the board's own (stm32h743: USB full speed, about 1 MB/s); kept in the rig file
+    /// (`link_mb_per_s`), so `rig check` counts it too.
+    #[arg(long, value_name = "MB/S")]
+    link_rate: Option<f64>,
     /// Write the rig here (rig.toml); without it the file is printed.
     #[arg(long, value_name = "rig.toml")]
     out: Option<PathBuf>,
@@ -151,7 +156,7 @@ pub fn run(args: RigArgs) -> Result<()> {
         RigCommand::Plan(a) => plan(a),
         RigCommand::Check(a) => {
             let rig = Rig::load(&a.rig.rig)?;
-            print_rig(&rig, None);
+            print_rig(&rig, &rig.cost_model(), None);
             if let Some(dir) = &a.board_configs {
                 write_board_configs(&rig, dir, &[&a.rig.rig])?;
             }
@@ -176,11 +181,20 @@ pub fn run(args: RigArgs) -> Result<()> {
     }
 }
 
-fn model_for(kind: BoardKind, instr_per_px: Option<f64>) -> Result<CostModel> {
+fn model_for(
+    kind: BoardKind,
+    instr_per_px: Option<f64>,
+    link_rate: Option<f64>,
+) -> Result<CostModel> {
     let model = kind.cost_model();
-    Ok(match instr_per_px {
+    let model = match instr_per_px {
         Some(x) if x.is_finite() && x > 0.0 => CostModel::flat(x, &model),
         Some(x) => bail!("--instr-per-px {x}: must be a positive number"),
+        None => model,
+    };
+    Ok(match link_rate {
+        Some(r) if r.is_finite() && r > 0.0 => model.with_measured_link(r * 1e6),
+        Some(r) => bail!("--link-rate {r}: must be a positive number of MB/s"),
         None => model,
     })
 }
@@ -210,11 +224,13 @@ fn plan(args: PlanArgs) -> Result<()> {
         }
     }
     let whole = ProcessingConfig::load(&args.config)?;
-    let model = model_for(args.board, args.instr_per_px)?;
+    let model = model_for(args.board, args.instr_per_px, args.link_rate)?;
     let (plan, mut loads) =
         rig::plan_keeping_up(&whole, args.boards, args.board, &model, args.camera_rate)?;
     let mut rig = Rig::from_plan(whole, args.board, args.camera_rate, &plan)
         .map_err(|e| anyhow::anyhow!("{e}"))?;
+    // Checked by `model_for`; kept in the rig file.
+    rig.link_mb_per_s = args.link_rate;
     if args.shared_rows {
         if plan.cut != rig::Cut::Rows || rig.boards.len() < 2 {
             bail!("--shared-rows: the plan has no two bands of rows to overlap (it cut column strips, or one board)");
@@ -234,7 +250,7 @@ fn plan(args: PlanArgs) -> Result<()> {
         if !loads.iter().all(rig::BoardLoad::keeps_up) {
             bail!(
                 "--shared-rows: with the shared rows {}: plan more boards (--boards {})",
-                rig::busiest(&loads, args.board),
+                rig::busiest(&loads, args.board, &model),
                 rig.boards.len() + 1
             );
         }
@@ -250,7 +266,7 @@ fn plan(args: PlanArgs) -> Result<()> {
             rig::Cut::Columns => "column strips",
         }
     );
-    print_rig(&rig, Some(&loads));
+    print_rig(&rig, &model, Some(&loads));
     let config_name = match &args.out {
         Some(out) => relative_to(&args.config, out.parent().unwrap_or(Path::new(""))),
         None => args.config.clone(),
@@ -356,8 +372,9 @@ fn describe_alignment(rig: &Rig) -> String {
     )
 }
 
-pub(super) fn print_rig(rig: &Rig, loads: Option<&[rig::BoardLoad]>) {
-    let model = rig.kind.cost_model();
+/// `model`: what the loads were computed with (`rig.cost_model()` unless
+/// the plan was given another).
+pub(super) fn print_rig(rig: &Rig, model: &CostModel, loads: Option<&[rig::BoardLoad]>) {
     let computed;
     let loads = match loads {
         Some(l) => l,
@@ -366,7 +383,7 @@ pub(super) fn print_rig(rig: &Rig, loads: Option<&[rig::BoardLoad]>) {
                 &rig.whole,
                 &rig.shares(),
                 rig.kind,
-                &model,
+                model,
                 rig.camera_rate_hz,
                 !rig.shared_rows().is_empty(),
             );
@@ -384,9 +401,9 @@ pub(super) fn print_rig(rig: &Rig, loads: Option<&[rig::BoardLoad]>) {
     println!("  {}", describe_alignment(rig));
     if let Some(rate) = rig.camera_rate_hz {
         let pixel_rate = rig.whole.camera.pixel_count() as f64 * rate;
-        let link = rig.kind.link().map_or(String::new(), |l| {
+        let link = model.link.map_or(String::new(), |l| {
             format!(
-                "; results on {}: about {:.1} MB/s a board",
+                "; results on its {} link: about {:.2} MB/s a board",
                 l.name,
                 l.bytes_per_s / 1e6
             )
@@ -402,7 +419,7 @@ pub(super) fn print_rig(rig: &Rig, loads: Option<&[rig::BoardLoad]>) {
         if loads.iter().any(|l| l.link_load.is_some_and(|x| x > 1.0)) {
             println!(
                 "  warning: {}: plan more boards or a lower rate",
-                rig::busiest(loads, rig.kind)
+                rig::busiest(loads, rig.kind, model)
             );
         }
     }
@@ -713,7 +730,7 @@ struct LiveBoards {
 
 impl LiveBoards {
     fn new(rig: &Rig) -> LiveBoards {
-        let model = rig.kind.cost_model();
+        let model = rig.cost_model();
         let loads = rig::loads(
             &rig.whole,
             &rig.shares(),

@@ -79,7 +79,7 @@ pub(super) fn demo(
         },
         started.elapsed().as_secs_f64()
     );
-    print_rig(&rig, None);
+    print_rig(&rig, &rig.cost_model(), None);
     let read = |first: usize, count: usize| Ok(frames[first..first + count].to_vec());
     let outcome = run_and_report(&rig, &mut clients, frames.len(), read, true, 10, None)?;
     outcome.verdict(true, frames.len())?;

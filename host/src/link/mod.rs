@@ -42,6 +42,7 @@ mod device_info;
 mod errors;
 mod frames;
 pub mod limits;
+mod link_test;
 mod pacing;
 mod port;
 mod requests;
@@ -64,6 +65,7 @@ pub use errors::{Interrupted, LinkError};
 pub use frames::{
     encode_pixel_rows, pixel_rows_frames, CaptureBegan, FrameOutcome, FrameSlopes, StreamReport,
 };
+pub use link_test::LinkTestReport;
 pub use port::{open_port, Port, UnixPort};
 pub use requests::{Configured, Reply};
 pub use serialport;
@@ -129,6 +131,8 @@ pub struct Client {
     capture_began: Option<frames::CaptureBegan>,
     /// `EdgeRows` of frames not finished yet.
     edge_rows: BTreeMap<u32, (u32, u32)>,
+    /// The fill of the link test in progress, if one is.
+    link_fills: Option<link_test::Tally>,
     subapertures: usize,
     upload_counter: u32,
     /// This client's session id.
@@ -221,6 +225,7 @@ impl Client {
             stale_outcomes: 0,
             capture_began: None,
             edge_rows: BTreeMap::new(),
+            link_fills: None,
             camera: None,
             subapertures: 0,
             upload_counter: 0,

@@ -57,6 +57,7 @@ impl Reply {
                     | (K::Capture, Ack::CaptureStarted { .. })
                     | (K::StopCapture, Ack::CaptureStopped { .. })
                     | (K::Bench, Ack::BenchDone { .. })
+                    | (K::LinkTest, Ack::LinkTestDone { .. })
             ),
         }
     }
@@ -392,6 +393,7 @@ mod tests {
             K::Capture,
             K::StopCapture,
             K::Bench,
+            K::LinkTest,
         ];
         let acks = [
             (K::ConfigBegin, Ack::UploadStarted { upload_id: 1 }),
@@ -416,6 +418,13 @@ mod tests {
             (K::Capture, Ack::CaptureStarted { frames: 1 }),
             (K::StopCapture, Ack::CaptureStopped { frames: 1 }),
             (K::Bench, Ack::BenchDone { workloads: 1 }),
+            (
+                K::LinkTest,
+                Ack::LinkTestDone {
+                    bytes: 1,
+                    messages: 1,
+                },
+            ),
         ];
         for (own, ack) in acks {
             for kind in kinds {

@@ -36,6 +36,12 @@ enum Incoming {
         first: u32,
         last: u32,
     },
+    /// A link test's fill; `frame_bytes` on the link, delimiter included.
+    LinkFill {
+        offset: u32,
+        fill: Vec<u8>,
+        frame_bytes: usize,
+    },
     Damaged,
 }
 
@@ -183,13 +189,15 @@ impl Client {
                 });
             }
         }
+        let now = Instant::now();
         for i in incoming {
-            self.absorb(i);
+            self.absorb(i, now);
         }
         Ok(n)
     }
 
-    fn absorb(&mut self, incoming: Incoming) {
+    /// What arrived, read at `at`.
+    fn absorb(&mut self, incoming: Incoming, at: Instant) {
         match incoming {
             Incoming::Reply(r) => self.replies.push_back(r),
             Incoming::ForeignHello(theirs) => {
@@ -230,6 +238,15 @@ impl Client {
             Incoming::EdgeRows { frame, first, last } => {
                 self.edge_rows.insert(frame, (first, last));
             }
+            Incoming::LinkFill {
+                offset,
+                fill,
+                frame_bytes,
+            } => match &mut self.link_fills {
+                Some(tally) => tally.arrived(offset, &fill, frame_bytes, at),
+                // An earlier test's, abandoned: not a reply to anything.
+                None => self.stale_outcomes += 1,
+            },
             Incoming::Damaged => self.damaged_frames += 1,
         }
     }
@@ -237,6 +254,7 @@ impl Client {
 
 fn decode_incoming(bytes: &mut [u8]) -> Incoming {
     let copy = bytes.to_vec();
+    let frame_bytes = bytes.len() + 1;
     match decode::<DeviceMessage>(bytes) {
         Ok(DeviceMessage::HelloReply(h)) => Incoming::Reply(Reply::Hello(DeviceInfo::new(
             h.version,
@@ -268,6 +286,11 @@ fn decode_incoming(bytes: &mut [u8]) -> Incoming {
         Ok(DeviceMessage::EdgeRows { frame, first, last }) => {
             Incoming::EdgeRows { frame, first, last }
         }
+        Ok(DeviceMessage::LinkFill { offset, fill }) => Incoming::LinkFill {
+            offset,
+            fill: fill.to_vec(),
+            frame_bytes,
+        },
         Err(_) => {
             let mut copy = copy;
             match hello_prefix(&mut copy) {

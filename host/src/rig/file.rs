@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 use super::part::{board_config, Rectangle};
-use super::plan::{BoardKind, BoardLoad, BoardShare, Plan};
+use super::plan::{BoardKind, BoardLoad, BoardShare, CostModel, Plan};
 use crate::config_file::ProcessingConfig;
 
 /// One board of a loaded rig.
@@ -37,6 +37,9 @@ pub struct Rig {
     pub config_file: Option<PathBuf>,
     pub kind: BoardKind,
     pub camera_rate_hz: Option<f64>,
+    /// The boards' results link as measured (`brightpix bench --port PORT
+    /// --link`), MB/s; `None`: the board kind's own.
+    pub link_mb_per_s: Option<f64>,
     pub boards: Vec<RigBoard>,
     /// The sync line wired to every board (`[sync]`), if the rig has one.
     pub sync: Option<RigSync>,
@@ -57,6 +60,7 @@ struct RigToml {
     config: PathBuf,
     board: String,
     camera_rate_hz: Option<f64>,
+    link_mb_per_s: Option<f64>,
     sync: Option<SyncToml>,
     #[serde(default)]
     boards: Vec<BoardToml>,
@@ -107,11 +111,29 @@ impl Rig {
             .map(|b| (b.name, b.port, b.rectangle, b.subapertures))
             .collect();
         let mut rig = Rig::from_parts(whole, kind, file.camera_rate_hz, boards).map_err(fail)?;
+        if let Some(rate) = file.link_mb_per_s {
+            if !(rate.is_finite() && rate > 0.0) {
+                return Err(fail(format!(
+                    "link_mb_per_s = {rate}: must be a positive number of MB/s"
+                )));
+            }
+            rig.link_mb_per_s = Some(rate);
+        }
         if let Some(sync) = file.sync {
             rig.set_sync_leader(&sync.leader).map_err(fail)?;
         }
         rig.config_file = Some(config_path);
         Ok(rig)
+    }
+
+    /// What a board of this rig costs: its kind's model, with the link as
+    /// measured if the rig says.
+    pub fn cost_model(&self) -> CostModel {
+        let model = self.kind.cost_model();
+        match self.link_mb_per_s {
+            Some(rate) => model.with_measured_link(rate * 1e6),
+            None => model,
+        }
     }
 
     /// Each board's rectangle and windows, as the cost model takes them
@@ -309,6 +331,7 @@ impl Rig {
             config_file: None,
             kind,
             camera_rate_hz,
+            link_mb_per_s: None,
             boards,
             sync: None,
         })
@@ -343,6 +366,13 @@ impl Rig {
         let _ = writeln!(out, "board = {:?}", self.kind.name());
         if let Some(rate) = self.camera_rate_hz {
             let _ = writeln!(out, "camera_rate_hz = {rate}");
+        }
+        if let Some(rate) = self.link_mb_per_s {
+            let _ = writeln!(
+                out,
+                "# The boards' results link as measured (brightpix bench --port PORT --link), MB/s.\n\
+                 link_mb_per_s = {rate}"
+            );
         }
         match self.sync {
             Some(sync) => {

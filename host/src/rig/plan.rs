@@ -51,6 +51,9 @@ pub struct CostModel {
     /// After the frame's last pixel, whatever the windows: the camera
     /// interface's last piece (a board's last DMA run).
     pub last_row_per_frame: f64,
+    /// The link that carries the board's results to the host; `None` for
+    /// an emulated board (a pseudo-terminal, no rate of its own).
+    pub link: Option<Link>,
 }
 
 impl CostModel {
@@ -63,8 +66,10 @@ impl CostModel {
     /// board's `DcmiSource` over a DMA ring, its runs, the 12-bit check)
     /// against its whole-row CANARY (11.59, 2,616) adds 0.61 instructions
     /// a pixel and 1,299 after the last pixel to the Cortex-M7's model.
-    pub const STM32H743: CostModel =
-        CostModel::CORTEX_M7.with_camera_runs(11.59, 2616.0, 12.20, 3915.0);
+    /// Its results leave on USB full speed ([`link::USB_FULL_SPEED`]).
+    pub const STM32H743: CostModel = CostModel::CORTEX_M7
+        .with_camera_runs(11.59, 2616.0, 12.20, 3915.0)
+        .with_link(link::USB_FULL_SPEED);
 
     /// The model through the bench's two rows (see the type's documentation).
     pub const fn fit(canary: f64, windows_8x8: f64, canary_last_row: f64) -> CostModel {
@@ -76,7 +81,25 @@ impl CostModel {
             last_row_per_window: canary_last_row / 7.0,
             camera_per_pixel: 0.0,
             last_row_per_frame: 0.0,
+            link: None,
         }
+    }
+
+    /// This model with its results on `link`.
+    pub const fn with_link(self, link: Link) -> CostModel {
+        CostModel {
+            link: Some(link),
+            ..self
+        }
+    }
+
+    /// This model with a link measured at `bytes_per_s` (`brightpix bench
+    /// --port PORT --link`) instead of its own.
+    pub fn with_measured_link(self, bytes_per_s: f64) -> CostModel {
+        self.with_link(Link {
+            name: "measured",
+            bytes_per_s,
+        })
     }
 
     /// This model for a board whose camera interface costs what the
@@ -155,15 +178,6 @@ impl BoardKind {
     pub fn clock_mhz(self) -> Option<f64> {
         match self {
             BoardKind::Stm32h743 => Some(480.0),
-            BoardKind::QemuM4 | BoardKind::QemuM7 => None,
-        }
-    }
-
-    /// The link that carries its results to the host; `None` for an
-    /// emulated board (a pseudo-terminal, no rate of its own).
-    pub fn link(self) -> Option<Link> {
-        match self {
-            BoardKind::Stm32h743 => Some(link::USB_FULL_SPEED),
             BoardKind::QemuM4 | BoardKind::QemuM7 => None,
         }
     }
@@ -506,7 +520,7 @@ fn loads_with(
                 result_bytes_per_frame,
                 result_bytes_per_s,
                 link_load: result_bytes_per_s
-                    .zip(kind.link())
+                    .zip(model.link)
                     .map(|(bytes, link)| bytes / link.bytes_per_s),
             }
         })
@@ -540,7 +554,7 @@ pub fn plan_keeping_up(
         "{boards} {} boards cannot keep up with this camera at {} Hz: {}; {}",
         kind.name(),
         camera_rate.unwrap_or(0.0),
-        busiest(&l, kind),
+        busiest(&l, kind, model),
         match enough {
             Some(k) => format!("{k} boards keep up (--boards {k}), or a lower camera rate"),
             None => "no split of these windows keeps up: lower the camera rate".to_string(),
@@ -548,8 +562,9 @@ pub fn plan_keeping_up(
     )))
 }
 
-/// What the busiest boards of `loads` would need of their core and link.
-pub fn busiest(loads: &[BoardLoad], kind: BoardKind) -> String {
+/// What the busiest boards of `loads` would need of their core and link
+/// (`model`'s).
+pub fn busiest(loads: &[BoardLoad], kind: BoardKind, model: &CostModel) -> String {
     let most = |f: fn(&BoardLoad) -> Option<f64>| loads.iter().filter_map(f).reduce(f64::max);
     let mut parts = Vec::new();
     if let (Some(core), Some(mhz)) = (most(|l| l.load), kind.clock_mhz()) {
@@ -561,10 +576,10 @@ pub fn busiest(loads: &[BoardLoad], kind: BoardKind) -> String {
     if let (Some(link), Some(bytes), Some(spec)) = (
         most(|l| l.link_load),
         most(|l| l.result_bytes_per_s),
-        kind.link(),
+        model.link,
     ) {
         parts.push(format!(
-            "the one with most results sends up to {:.2} MB/s, {:.0}% of its {} link (about {:.1} MB/s)",
+            "the one with most results sends up to {:.2} MB/s, {:.0}% of its {} link (about {:.2} MB/s)",
             bytes / 1e6,
             link * 100.0,
             spec.name,
@@ -613,7 +628,9 @@ mod tests {
                 let h = CostModel::STM32H743;
                 assert_eq!(
                     h,
-                    model.with_camera_runs(canary, last_row, runs, runs_last_row)
+                    model
+                        .with_camera_runs(canary, last_row, runs, runs_last_row)
+                        .with_link(link::USB_FULL_SPEED)
                 );
                 // The board's model reproduces its own row.
                 assert!((h.frame_instructions(12544, 49) / 12544.0 - runs).abs() < 1e-9);
@@ -789,13 +806,27 @@ mod tests {
         let k = boards_named(&text);
         let (_, loads) = plan_keeping_up(&config, k, kind, &model, Some(1000.0)).unwrap();
         assert!(loads.iter().all(|l| l.link_load.unwrap() <= 1.0));
+        // A link measured at twice USB full speed: two boards keep up; at
+        // half of it, more boards than at USB full speed.
+        let fast = model.with_measured_link(2.0e6);
+        let (p, _) = plan_keeping_up(&config, 2, kind, &fast, Some(1000.0)).unwrap();
+        assert_eq!(p.shares.len(), 2);
+        let slow = model.with_measured_link(0.5e6);
+        let text = plan_keeping_up(&config, k, kind, &slow, Some(1000.0))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            text.contains("of its measured link (about 0.50 MB/s)"),
+            "{text}"
+        );
+        assert!(boards_named(&text) > k, "{text}");
         // The emulated boards have no link rate of their own.
         let qemu = loads_with(
             &config,
             &ResultBounds::of(&config),
             &two.shares,
             BoardKind::QemuM7,
-            &model,
+            &CostModel::CORTEX_M7,
             Some(1000.0),
             false,
         );

@@ -8,7 +8,9 @@ use core::fmt;
 use postcard_schema::Schema;
 use serde::{Deserialize, Serialize};
 
-use super::{BenchFault, HostMessage, SyncFault, Table, MAX_CHUNK_BYTES, MAX_FRAME_LEN};
+use super::{
+    BenchFault, HostMessage, LinkTestFault, SyncFault, Table, MAX_CHUNK_BYTES, MAX_FRAME_LEN,
+};
 use crate::config::{ConfigError, MapKind, MemoryKind};
 
 /// A request failed; the device's state is as before it (except where noted).
@@ -71,6 +73,8 @@ pub enum DeviceError {
     Bench(BenchFault),
     /// A `Capture` on the sync line was refused; nothing was started.
     Sync(SyncFault),
+    /// A `LinkTest` was refused; nothing was sent.
+    LinkTest(LinkTestFault),
 }
 
 /// Why a device's camera interface cannot capture a crop rectangle (the
@@ -387,6 +391,7 @@ pub enum MessageKind {
     Capture,
     StopCapture,
     Bench,
+    LinkTest,
 }
 
 impl HostMessage<'_> {
@@ -403,6 +408,7 @@ impl HostMessage<'_> {
             HostMessage::Capture { .. } => MessageKind::Capture,
             HostMessage::StopCapture => MessageKind::StopCapture,
             HostMessage::Bench { .. } => MessageKind::Bench,
+            HostMessage::LinkTest { .. } => MessageKind::LinkTest,
         }
     }
 }
@@ -532,6 +538,7 @@ impl fmt::Display for DeviceError {
             ),
             Bench(fault) => write!(f, "bench refused: {fault}"),
             Sync(fault) => write!(f, "capture on the sync line refused: {fault}"),
+            LinkTest(fault) => write!(f, "link test refused: {fault}"),
         }
     }
 }

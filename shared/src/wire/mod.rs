@@ -52,6 +52,7 @@ pub mod capture;
 pub mod fault;
 pub mod frame;
 pub mod health;
+pub mod link_test;
 pub mod tables;
 
 use core::fmt;
@@ -78,6 +79,7 @@ pub use health::{
     crs_sync_source_name, crs_sync_source_usb2, CameraInterface, Clocks, ErratumFix, Fault,
     FaultKind, FaultLog, Health, Silicon, StackUsage, UsbClockSync, STM32H7_REV_Y,
 };
+pub use link_test::{link_fill, link_fill_byte, LinkTestFault, MAX_LINK_FILL, MAX_LINK_TEST_BYTES};
 pub use tables::{PixelRowsPlan, UploadPlan};
 
 /// Bumped by hand whenever the meaning of a message changes without its
@@ -98,8 +100,10 @@ pub use tables::{PixelRowsPlan, UploadPlan};
 /// camera numbers them), `DeviceError::Sync`. Version 7: the alignment
 /// self-check without wiring (`Capture.edge_rows`,
 /// `DeviceMessage::EdgeRows`: checksums of a frame's first and last rows).
+/// Version 8: the link test (`HostMessage::LinkTest`,
+/// `DeviceMessage::LinkFill`, `Ack::LinkTestDone`, `DeviceError::LinkTest`).
 /// PROTOCOL.md §12 lists every version.
-pub const PROTOCOL_VERSION: u16 = 7;
+pub const PROTOCOL_VERSION: u16 = 8;
 
 /// Largest postcard encoding of a message that every frame buffer holds.
 pub const MAX_MESSAGE_LEN: usize = 1024;
@@ -242,6 +246,11 @@ pub enum HostMessage<'a> {
     /// workload's own count). Replies: one `BenchReport` per workload, then
     /// `Ack(BenchDone)`; or `Error(Bench(..))` and nothing measured.
     Bench { workload: &'a str, frames: u32 },
+    /// Sends `bytes` fill bytes ([`link_fill_byte`]) to the host as fast as
+    /// the link takes them, `chunk` a message (the last may be shorter).
+    /// Replies: the `LinkFill` messages, then `Ack(LinkTestDone)`; or
+    /// `Error(LinkTest(..))` and nothing sent (PROTOCOL.md §15).
+    LinkTest { bytes: u32, chunk: u16 },
 }
 
 /// Protocol identity: the frozen prefix of `Hello` and `HelloReply`. These
@@ -391,6 +400,12 @@ pub enum DeviceMessage<'a> {
         first: u32,
         last: u32,
     },
+    /// Bytes `offset ..` of a link test's fill ([`link_fill_byte`]), in
+    /// order, none left out.
+    LinkFill {
+        offset: u32,
+        fill: &'a [u8],
+    },
 }
 
 /// The device's identity and limits. The first two fields are frozen.
@@ -476,6 +491,12 @@ pub enum Ack {
     /// active configuration is unchanged; its level filters start afresh.
     BenchDone {
         workloads: u32,
+    },
+    /// A `LinkTest` is done: `bytes` fill bytes were sent in `messages`
+    /// `LinkFill` messages.
+    LinkTestDone {
+        bytes: u32,
+        messages: u32,
     },
 }
 

@@ -194,6 +194,7 @@ fn every_vector_decodes_to_its_message() {
         "Capture",
         "StopCapture",
         "Bench",
+        "LinkTest",
         "HelloReply",
         "Ack",
         "Error",
@@ -203,6 +204,7 @@ fn every_vector_decodes_to_its_message() {
         "CaptureBegan",
         "EdgeRows",
         "BenchReport",
+        "LinkFill",
     ] {
         assert!(
             names.iter().any(|n| n.split('.').next() == Some(name)),

@@ -208,6 +208,13 @@ pub fn host_messages(payload: &[u8]) -> Vec<(&'static str, HostMessage<'_>)> {
                 frames: 16,
             },
         ),
+        (
+            "a million fill bytes, 256 a message",
+            HostMessage::LinkTest {
+                bytes: 1_000_000,
+                chunk: 256,
+            },
+        ),
     ]);
     all
 }
@@ -443,6 +450,13 @@ pub fn device_messages() -> Vec<(&'static str, DeviceMessage<'static>)> {
         },
     ));
     all.push((
+        "a link test's fill, bytes 500 .. 510: each the offset modulo 251",
+        DeviceMessage::LinkFill {
+            offset: 500,
+            fill: link_fill(500, 10),
+        },
+    ));
+    all.push((
         "frame 0 began without a sync edge; the camera does not number its frames",
         DeviceMessage::CaptureBegan {
             synced: false,
@@ -469,6 +483,10 @@ pub fn device_messages() -> Vec<(&'static str, DeviceMessage<'static>)> {
         Ack::CaptureStarted { frames: 0 },
         Ack::CaptureStopped { frames: 100 },
         Ack::BenchDone { workloads: 20 },
+        Ack::LinkTestDone {
+            bytes: 1_000_000,
+            messages: 3907,
+        },
     ] {
         all.push(("", DeviceMessage::Ack(ack)));
     }
@@ -623,6 +641,11 @@ pub fn device_messages() -> Vec<(&'static str, DeviceMessage<'static>)> {
         DeviceError::Bench(BenchFault::TooManyFrames { max: 64 }),
         DeviceError::Sync(SyncFault::NoSyncLine),
         DeviceError::Sync(SyncFault::LineHigh),
+        DeviceError::LinkTest(LinkTestFault::Streaming),
+        DeviceError::LinkTest(LinkTestFault::TooManyBytes {
+            max: MAX_LINK_TEST_BYTES,
+        }),
+        DeviceError::LinkTest(LinkTestFault::Chunk { max: MAX_LINK_FILL }),
         DeviceError::Unexpected {
             message: MessageKind::Bench,
         },

@@ -9,6 +9,7 @@
 mod bench;
 mod camera;
 mod faults;
+mod link_test;
 mod random;
 mod session;
 mod streaming;
@@ -97,6 +98,10 @@ enum Reply {
         first: u32,
         last: u32,
     },
+    LinkFill {
+        offset: u32,
+        fill: Vec<u8>,
+    },
 }
 
 impl From<DeviceMessage<'_>> for Reply {
@@ -129,6 +134,10 @@ impl From<DeviceMessage<'_>> for Reply {
             DeviceMessage::EdgeRows { frame, first, last } => {
                 Reply::EdgeRows { frame, first, last }
             }
+            DeviceMessage::LinkFill { offset, fill } => Reply::LinkFill {
+                offset,
+                fill: fill.to_vec(),
+            },
         }
     }
 }

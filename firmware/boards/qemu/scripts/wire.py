@@ -205,6 +205,7 @@ ACKS = [
     "CaptureStarted",
     "CaptureStopped",
     "BenchDone",
+    "LinkTestDone",
 ]
 ERRORS = [
     "Decode",
@@ -227,6 +228,7 @@ ERRORS = [
     "Crop",
     "Bench",
     "Sync",
+    "LinkTest",
 ]
 COUNT_UNITS = ["Cycles", "Instructions", "Uncounted"]
 BENCH_LIMITS = ["Pixels", "Windows", "EngineMemory"]
@@ -267,6 +269,8 @@ def decode_device(body):
             f = dict(upload_id=r.option(r.varint))
         elif name == "LevelFiltersReset":
             f = {}
+        elif name == "LinkTestDone":
+            f = dict(bytes=r.varint(), messages=r.varint())
         else:
             f = dict(value=r.varint())
         return "Ack", dict(ack=name, **f)
@@ -316,6 +320,9 @@ def decode_device(body):
         return "CaptureBegan", dict(synced=r.bool(), camera_frame=r.option(r.varint))
     if kind == 8:
         return "EdgeRows", dict(frame=r.varint(), first=r.varint(), last=r.varint())
+    if kind == 9:
+        # A link test's fill (PROTOCOL.md §15): byte k is (offset + k) % 251.
+        return "LinkFill", dict(offset=r.varint(), fill=list(r.bytes()))
     raise ValueError(f"unknown device message {kind}")
 
 
@@ -471,8 +478,11 @@ def check_vectors():
                 fix = health["silicon"]["axi_sram_fix"]
                 health["silicon"] = dict(health["silicon"], axi_sram_fix=ERRATUM_FIXES.index(fix))
             assert fields["health"] == health, (fields["health"], health)
-        if kind in ("BenchReport", "CaptureBegan", "EdgeRows"):
+        if kind in ("BenchReport", "CaptureBegan", "EdgeRows", "LinkFill"):
             assert fields == message[kind], (fields, message)
+        if kind == "LinkFill":
+            offset = fields["offset"]
+            assert fields["fill"] == [(offset + k) % 251 for k in range(len(fields["fill"]))]
         count += 1
     print(
         f"vectors: {count} device messages decoded and the Hello encoded as in "
