@@ -16,7 +16,8 @@ use brightpix_firmware::device::embedded_io_async::{ErrorType, Read, Write};
 use brightpix_firmware::device::{vet, Device, LinkOnly};
 use brightpix_protocol::wire::{
     decode, encode, Ack, CaptureStart, DeviceMessage, FrameReader, Hello, HostMessage,
-    PixelRowsPlan, Received, Table, UploadPlan, MAX_CHUNK_BYTES, MAX_FRAME_LEN, MAX_PIXEL_BYTES,
+    PixelRowsPlan, Received, Table, UploadPlan, MAX_CHUNK_BYTES, MAX_FRAME_LEN, MAX_LINK_FILL,
+    MAX_LINK_TEST_BYTES, MAX_PIXEL_BYTES,
 };
 use brightpix_protocol::{Camera, LevelFilter, SelectionRule, SubapertureWindow};
 
@@ -280,7 +281,7 @@ pub fn device_loop(data: &[u8]) {
                 host.pixels(frame, &pixels, b.u16() as usize);
             }
             5 => {
-                let m = match b.u8() % 7 {
+                let m = match b.u8() % 8 {
                     0 => HostMessage::StatusRequest,
                     1 => HostMessage::ConfigAbort,
                     2 => HostMessage::ResetLevelFilters,
@@ -298,7 +299,7 @@ pub fn device_loop(data: &[u8]) {
                         upload_id: b.u32(),
                         crc32: b.u32(),
                     },
-                    _ => HostMessage::ConfigChunk {
+                    6 => HostMessage::ConfigChunk {
                         upload_id: b.u32(),
                         table: [
                             Table::Windows,
@@ -309,6 +310,16 @@ pub fn device_loop(data: &[u8]) {
                         ][b.below(5) as usize],
                         offset: b.u32() % 4096,
                         bytes: &[1, 2, 3, 4, 5, 6, 7, 8][..b.below(9) as usize],
+                    },
+                    // A link test: mostly a few messages, now and then
+                    // beyond its limits (chunk 0 or 961, too many bytes).
+                    _ => HostMessage::LinkTest {
+                        bytes: if b.u8() == 0 {
+                            MAX_LINK_TEST_BYTES + 1
+                        } else {
+                            b.u32() % 4096
+                        },
+                        chunk: b.below(u32::from(MAX_LINK_FILL) + 2) as u16,
                     },
                 };
                 host.send(&m);

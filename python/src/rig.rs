@@ -50,12 +50,10 @@ impl PyRig {
         let kind = BoardKind::parse(board).map_err(PyValueError::new_err)?;
         let model = match link_rate {
             None => kind.cost_model(),
-            Some(r) if r.is_finite() && r > 0.0 => kind.cost_model().with_measured_link(r * 1e6),
-            Some(r) => {
-                return Err(PyValueError::new_err(format!(
-                    "link_rate {r}: must be a positive number of MB/s"
-                )))
-            }
+            Some(r) => kind
+                .cost_model()
+                .with_link_rate(r)
+                .map_err(|e| PyValueError::new_err(format!("link_rate {r}: {e}")))?,
         };
         let whole = config.get().inner.clone();
         let (plan, _) = rig::plan_keeping_up(&whole, boards, kind, &model, camera_rate)

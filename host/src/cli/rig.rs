@@ -192,11 +192,12 @@ fn model_for(
         Some(x) => bail!("--instr-per-px {x}: must be a positive number"),
         None => model,
     };
-    Ok(match link_rate {
-        Some(r) if r.is_finite() && r > 0.0 => model.with_measured_link(r * 1e6),
-        Some(r) => bail!("--link-rate {r}: must be a positive number of MB/s"),
-        None => model,
-    })
+    match link_rate {
+        Some(r) => model
+            .with_link_rate(r)
+            .map_err(|e| anyhow::anyhow!("--link-rate {r}: {e}")),
+        None => Ok(model),
+    }
 }
 
 fn plan(args: PlanArgs) -> Result<()> {

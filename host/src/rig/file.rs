@@ -112,11 +112,9 @@ impl Rig {
             .collect();
         let mut rig = Rig::from_parts(whole, kind, file.camera_rate_hz, boards).map_err(fail)?;
         if let Some(rate) = file.link_mb_per_s {
-            if !(rate.is_finite() && rate > 0.0) {
-                return Err(fail(format!(
-                    "link_mb_per_s = {rate}: must be a positive number of MB/s"
-                )));
-            }
+            kind.cost_model()
+                .with_link_rate(rate)
+                .map_err(|e| fail(format!("link_mb_per_s = {rate}: {e}")))?;
             rig.link_mb_per_s = Some(rate);
         }
         if let Some(sync) = file.sync {
@@ -131,6 +129,7 @@ impl Rig {
     pub fn cost_model(&self) -> CostModel {
         let model = self.kind.cost_model();
         match self.link_mb_per_s {
+            // Checked when loaded or planned.
             Some(rate) => model.with_measured_link(rate * 1e6),
             None => model,
         }

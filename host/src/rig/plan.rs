@@ -102,6 +102,17 @@ impl CostModel {
         })
     }
 
+    /// [`with_measured_link`](Self::with_measured_link) of a rate given in
+    /// MB/s, as `bench --port --link` prints it and `rig plan --link-rate`
+    /// and rig.toml's `link_mb_per_s` take it; not a positive number: the
+    /// error says so (its caller names the figure).
+    pub fn with_link_rate(self, mb_per_s: f64) -> Result<CostModel, String> {
+        if !(mb_per_s.is_finite() && mb_per_s > 0.0) {
+            return Err("must be a positive number of MB/s".into());
+        }
+        Ok(self.with_measured_link(mb_per_s * 1e6))
+    }
+
     /// This model for a board whose camera interface costs what the
     /// bench's camera-run row shows against its whole-row CANARY row (same
     /// core, same run): the difference per pixel, and after the last pixel.
