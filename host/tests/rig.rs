@@ -582,21 +582,17 @@ fn a_measured_link_rate_plans_the_rig() {
     // Planned with the measured rate: kept in the rig file, and `rig
     // check` counts it from there.
     let rig_file = dir.join("rig.toml");
-    let (ok, text) = run(&[
-        "rig",
-        "plan",
-        "--config",
-        config.to_str().unwrap(),
-        "--boards",
-        "3",
-        "--camera-rate",
-        "2000",
-        "--link-rate",
-        &rate,
-        "--out",
-        rig_file.to_str().unwrap(),
-    ]);
-    assert!(ok, "{text}");
+    common::plan_three_boards(
+        &config,
+        &[
+            "--camera-rate",
+            "2000",
+            "--link-rate",
+            &rate,
+            "--out",
+            rig_file.to_str().unwrap(),
+        ],
+    );
     let written = std::fs::read_to_string(&rig_file).unwrap();
     assert!(
         written.contains(&format!("link_mb_per_s = {}", rate.parse::<f64>().unwrap())),
