@@ -5,7 +5,7 @@
 
 use std::time::{Duration, Instant};
 
-use brightpix_protocol::wire::{link_fill, Ack, HostMessage, MAX_LINK_FILL};
+use brightpix_protocol::wire::{link_fill, Ack, HostMessage, MessageKind, MAX_LINK_FILL};
 
 use super::errors::unexpected;
 use super::requests::Reply;
@@ -88,28 +88,18 @@ impl Tally {
 impl Client {
     /// `LinkTest { bytes, chunk }` (PROTOCOL.md §15): `bytes` fill bytes
     /// from the device, `chunk` a message, checked and timed. The wait
-    /// ends after the client's timeout of silence, not of the whole test.
+    /// ends after the client's timeout of silence, not of the whole test;
+    /// replies that answer no link test (a late answer to an earlier
+    /// `Hello` on QEMU's pty) are not its reply (`request_raw`).
     pub fn link_test(&mut self, bytes: u32, chunk: u16) -> Result<LinkTestReport, LinkError> {
-        self.move_replies_to_notices();
-        self.close_pixel_fifo();
         let frame = self
             .encode(&HostMessage::LinkTest { bytes, chunk })?
             .to_vec();
         self.link_fills = Some(Tally::default());
-        let sent = self.write_raw(&frame, "LinkTest");
-        let reply = sent.and_then(|()| {
-            let timeout = self.options.timeout;
-            self.wait_within("the link test's fill", timeout, |c| c.replies.pop_front())
-        });
+        let reply = self.request_raw(&frame, MessageKind::LinkTest);
         let tally = self.link_fills.take().unwrap_or_default();
         let done = match reply? {
             Reply::Ack(Ack::LinkTestDone { bytes, messages }) => (bytes, messages),
-            Reply::Error(error) => {
-                return Err(LinkError::Device {
-                    request: "LinkTest".into(),
-                    error,
-                })
-            }
             other => return Err(unexpected("LinkTest", &other)),
         };
         let broken = |what: String| LinkError::Usage(format!("link test: {what}"));

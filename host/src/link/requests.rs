@@ -291,6 +291,19 @@ mod tests {
                         },
                     }))
                 }
+                Ok(HostMessage::LinkTest { bytes, chunk }) => {
+                    if let Some(foreign) = self.foreign.take() {
+                        self.send(&foreign);
+                    }
+                    let mut messages = 0;
+                    for offset in (0..bytes).step_by(chunk.into()) {
+                        let len = (bytes - offset).min(chunk.into()) as usize;
+                        let fill = brightpix_protocol::wire::link_fill(offset, len);
+                        self.send(&DeviceMessage::LinkFill { offset, fill });
+                        messages += 1;
+                    }
+                    self.send(&DeviceMessage::Ack(Ack::LinkTestDone { bytes, messages }));
+                }
                 Ok(HostMessage::StatusRequest) => {
                     if let Some(foreign) = self.foreign.take() {
                         self.send(&foreign);
@@ -366,6 +379,33 @@ mod tests {
         });
         let status = client(applied).status().unwrap();
         assert_eq!(status.config_id, Some(5));
+    }
+
+    /// A late answer to an earlier `Hello` (QEMU's pty, seen in CI as
+    /// "unexpected reply to LinkTest: Hello(..)") before the fill is not the
+    /// link test's reply: the test goes on to its `Ack`.
+    #[test]
+    fn a_late_hello_is_not_the_link_tests_reply() {
+        let late = DeviceMessage::HelloReply(HelloReply {
+            version: 8,
+            schema: 1,
+            session: 9,
+            capabilities: Capabilities {
+                max_subapertures: 16,
+                max_camera_pixels: 0,
+                max_open_windows: 4,
+                pool_entries: 64,
+                history_pixels: 1024,
+                scratch_entries: 64,
+                max_results_per_row: 4,
+                max_frame_bytes: MAX_FRAME_LEN as u32,
+                pixel_source: PixelSourceKind::Link,
+                board: "scripted",
+            },
+        });
+        let mut c = client(late);
+        let report = c.link_test(1_000, 300).unwrap();
+        assert_eq!((report.bytes, report.messages), (1_000, 4));
     }
 
     /// An error can answer any request: it is not skipped.
