@@ -255,6 +255,22 @@ mod tests {
     use super::*;
     use crate::link::Port;
 
+    /// What the scripted device says of itself in its `HelloReply`.
+    fn scripted_capabilities() -> Capabilities<'static> {
+        Capabilities {
+            max_subapertures: 16,
+            max_camera_pixels: 0,
+            max_open_windows: 4,
+            pool_entries: 64,
+            history_pixels: 1024,
+            scratch_entries: 64,
+            max_results_per_row: 4,
+            max_frame_bytes: MAX_FRAME_LEN as u32,
+            pixel_source: PixelSourceKind::Link,
+            board: "scripted",
+        }
+    }
+
     /// A device that answers Hello and StatusRequest, and puts `foreign`
     /// (another program's answer) before its reply to the first status.
     struct Scripted {
@@ -277,18 +293,7 @@ mod tests {
                         version: protocol.version,
                         schema: protocol.schema,
                         session,
-                        capabilities: Capabilities {
-                            max_subapertures: 16,
-                            max_camera_pixels: 0,
-                            max_open_windows: 4,
-                            pool_entries: 64,
-                            history_pixels: 1024,
-                            scratch_entries: 64,
-                            max_results_per_row: 4,
-                            max_frame_bytes: MAX_FRAME_LEN as u32,
-                            pixel_source: PixelSourceKind::Link,
-                            board: "scripted",
-                        },
+                        capabilities: scripted_capabilities(),
                     }))
                 }
                 Ok(HostMessage::LinkTest { bytes, chunk }) => {
@@ -390,18 +395,7 @@ mod tests {
             version: 8,
             schema: 1,
             session: 9,
-            capabilities: Capabilities {
-                max_subapertures: 16,
-                max_camera_pixels: 0,
-                max_open_windows: 4,
-                pool_entries: 64,
-                history_pixels: 1024,
-                scratch_entries: 64,
-                max_results_per_row: 4,
-                max_frame_bytes: MAX_FRAME_LEN as u32,
-                pixel_source: PixelSourceKind::Link,
-                board: "scripted",
-            },
+            capabilities: scripted_capabilities(),
         });
         let mut c = client(late);
         let report = c.link_test(1_000, 300).unwrap();
