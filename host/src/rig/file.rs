@@ -11,8 +11,9 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use super::board::{BoardKind, CostModel};
 use super::part::{board_config, Rectangle};
-use super::plan::{BoardKind, BoardLoad, BoardShare, CostModel, Plan};
+use super::plan::{BoardLoad, BoardShare, Plan};
 use crate::config_file::ProcessingConfig;
 
 /// One board of a loaded rig.
@@ -468,7 +469,8 @@ fn ranges(sorted: &[usize]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::rig::plan::{plan, CostModel};
+    use crate::rig::board::CostModel;
+    use crate::rig::plan::plan;
 
     fn write_rig(dir: &Path, boards: &str) -> PathBuf {
         let canary = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/canary.toml");
