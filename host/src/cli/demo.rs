@@ -63,7 +63,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
     let frames = canary_frames(args.frames, args.seed);
     let sim_time = t.elapsed();
     if let Some(boards) = args.boards {
-        return super::rig_demo::demo(boards, &frames, args.qemu, args.elf);
+        return super::rig::demo(boards, &frames, args.qemu, args.elf);
     }
 
     let (device, what) = if args.qemu {

@@ -15,8 +15,6 @@ mod paper;
 mod process;
 mod progress;
 mod rig;
-mod rig_capture;
-mod rig_demo;
 mod simulate_device;
 mod simulate_rig;
 mod soak;

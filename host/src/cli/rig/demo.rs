@@ -7,7 +7,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 
-use super::rig::{print_rig, run_and_report};
+use super::print_rig;
+use super::stream::run_and_report;
 use crate::link::{Client, PixelSink};
 use crate::rig::{self, BoardKind, Rig};
 use crate::sim_device::{InProcessDevice, QemuCpu, QemuDevice, QemuOptions};
@@ -21,7 +22,7 @@ enum SimBoard {
 /// `brightpix demo --boards K [--qemu]`: K simulated devices (in-process,
 /// or the firmware in QEMU alternating Cortex-M4 and M7) on one simulated
 /// CANARY camera, planned, streamed, merged and verified.
-pub(super) fn demo(
+pub(in crate::cli) fn demo(
     boards: usize,
     frames: &[Vec<u16>],
     qemu: bool,

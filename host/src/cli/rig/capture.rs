@@ -17,7 +17,8 @@ use anyhow::{bail, Context, Result};
 use brightpix_protocol::wire::PixelSourceKind;
 use clap::{Args, ValueEnum};
 
-use super::rig::{open_clients, report, CheckArgs, Outcome};
+use super::stream::{report, Outcome};
+use super::{open_clients, CheckArgs};
 use crate::io::{check_result_outputs, write_results, Layout, Provenance, Raw, Results};
 use crate::link::Client;
 use crate::rig::{self, MergedFrame, Rig, RigRun, RigStart, RigStream};
@@ -29,7 +30,7 @@ pub struct CaptureArgs {
     rig: CheckArgs,
     /// Frames to capture (each board numbers them from its own capture start: one camera frame on
     /// every board only with the sync line, see --start).
-    #[arg(long, value_name = "N", value_parser = super::at_least_one)]
+    #[arg(long, value_name = "N", value_parser = crate::cli::at_least_one)]
     count: usize,
     /// How the boards start: sync (followers armed on the rig's sync line, then the leader raises
     /// it after a frame start: all begin on the same camera frame; needs [sync] in rig.toml),
@@ -152,7 +153,7 @@ pub(super) fn capture_and_report(
     show: usize,
 ) -> Result<Outcome> {
     let mut results = Results::new(rig.whole.windows.len());
-    let progress = super::progress::Progress::new(u64::from(count), "frames");
+    let progress = crate::cli::progress::Progress::new(u64::from(count), "frames");
     let mut on_frame = |m: &MergedFrame| {
         for r in &m.results {
             results.push(r.map(|e| Raw {
