@@ -1,7 +1,7 @@
 //! Simulation in the loop with the real firmware: the QEMU board's ELF
 //! (`brightpix-qemu`) in `qemu-system-arm`, UART0 on a pseudo-terminal,
 //! pixels through a FIFO that the board reads by semihosting (the emulated
-//! UART carries only ~20 KB/s). Driven through the host tool's client;
+//! UART takes only ~8 KB/s from the host: a CANARY frame every ~3 s). Driven through the host tool's client;
 //! every result is checked bit for bit against the reference.
 //!
 //! Two builds: Cortex-M4F on mps2-an386 (every test) and Cortex-M7 on

@@ -63,7 +63,7 @@ pub struct BenchArgs {
     #[arg(long, requires = "port", conflicts_with_all = ["workload", "frames"])]
     link: bool,
     /// With --link: fill bytes, 1 to 16777216 [default: 1000000, about 1 s of USB full speed;
-    /// QEMU's UART carries about 20 KB/s].
+    /// QEMU's UART carries 0.1-0.3 MB/s to the host].
     #[arg(long, value_name = "N", requires = "link")]
     link_bytes: Option<u32>,
     /// With --link: fill bytes a message, 1 to 960 [default: 256].

@@ -34,7 +34,7 @@ pub struct DemoArgs {
     /// Firmware ELF for --qemu.
     #[arg(long, value_name = "PATH")]
     elf: Option<PathBuf>,
-    /// With --qemu, send pixels over the emulated UART (~20 KB/s, about 1 s per frame) instead of the FIFO.
+    /// With --qemu, send pixels over the emulated UART (~8 KB/s, about 3 s per CANARY frame) instead of the FIFO.
     #[arg(long)]
     pixels_over_uart: bool,
     /// Mismatches to print.

@@ -71,8 +71,8 @@ pub struct SimulateDeviceArgs {
     /// default 1).
     #[arg(long, value_name = "sim[:SEED]", conflicts_with = "pixels_fifo")]
     camera: Option<CameraSpec>,
-    /// Frame rate of --camera, frames per second (default 100 in-process, 10 under --qemu, whose
-    /// results leave on a ~20 KB/s UART).
+    /// Frame rate of --camera, frames per second (default 100 in-process, 10 under --qemu, an emulated
+    /// core whose results leave on an emulated UART, 0.1-0.3 MB/s).
     #[arg(long, value_name = "HZ", requires = "camera", value_parser = clap::value_parser!(u32).range(1..=100_000))]
     camera_fps: Option<u32>,
     /// Keep QEMU's raw defmt log in this file.

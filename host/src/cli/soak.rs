@@ -33,7 +33,7 @@ pub struct SoakArgs {
     /// Firmware ELF for --qemu.
     #[arg(long, value_name = "PATH")]
     elf: Option<PathBuf>,
-    /// With --qemu, send pixels over the emulated UART (about 1 frame/s) instead of the FIFO.
+    /// With --qemu, send pixels over the emulated UART (~8 KB/s: a CANARY frame every ~3 s) instead of the FIFO.
     #[arg(long)]
     pixels_over_uart: bool,
     /// Soak a device on this port instead of a simulated one.

@@ -65,8 +65,9 @@ pub type CameraRing = SoftRing<RING_WORDS>;
 
 /// Frames per second of the in-process device's camera by default.
 pub const IN_PROCESS_FPS: u32 = 100;
-/// Frames per second of the QEMU board's camera by default: its results
-/// leave on a UART of about 20 KB/s (~0.7 KB per CANARY frame).
+/// Frames per second of the QEMU board's camera by default: an emulated
+/// core, whose results (~0.7 KB per CANARY frame) leave on an emulated
+/// UART of 0.1-0.3 MB/s (`brightpix bench --port PORT --link`).
 pub const QEMU_FPS: u32 = 10;
 
 /// `--camera sim[:SEED]`: the simulated camera and its seed (default 1).
