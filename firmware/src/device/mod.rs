@@ -63,7 +63,7 @@ use brightpix_protocol::wire::{
 use embassy_futures::select::{select, select3, Either, Either3};
 use embedded_io_async::{Read, Write};
 
-use crate::engine::{Engine, EngineMemory, EngineStats, OutputSink, SubapertureResult};
+use crate::engine::{Engine, EngineMemory, EngineStats, SubapertureResult};
 use bench::BenchPlan;
 use capture::Capture;
 use fmt::{log_debug, log_info, log_warn};
@@ -745,31 +745,6 @@ fn unreachable_hello() -> Result<Ack, DeviceError> {
     Err(DeviceError::Unexpected {
         message: MessageKind::Hello,
     })
-}
-
-/// Collects the engine's results into the queue.
-struct QueueSink<'a> {
-    results: &'a mut [SubapertureResult],
-    queued: &'a mut usize,
-    lost: u32,
-    done: bool,
-}
-
-impl OutputSink for QueueSink<'_> {
-    fn subaperture(&mut self, result: SubapertureResult) {
-        match self.results.get_mut(*self.queued) {
-            Some(slot) => {
-                *slot = result;
-                *self.queued += 1;
-            }
-            // Only if a row finishes more windows than vetted; never.
-            None => self.lost += 1,
-        }
-    }
-
-    fn frame_complete(&mut self, _frame: u32) {
-        self.done = true;
-    }
 }
 
 fn reborrow<'a>(memory: &'a mut EngineMemory<'_>) -> EngineMemory<'a> {

@@ -7,10 +7,8 @@ use brightpix_protocol::wire::{
 use embedded_io_async::{Read, Write};
 
 use super::fmt::{log_debug, log_info};
-use super::{
-    bump, saturate, Core, FrameProgress, LinkResult, QueueSink, Watchdog, STATUS_LOG_FRAMES,
-};
-use crate::engine::{Engine, FrameError};
+use super::{bump, saturate, Core, FrameProgress, LinkResult, Watchdog, STATUS_LOG_FRAMES};
+use crate::engine::{Engine, FrameError, OutputSink, SubapertureResult};
 
 impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
     /// Pixels as u16 LE bytes (even length), converted a batch at a time.
@@ -243,5 +241,30 @@ impl<T: Read + Write, W: Watchdog> Core<'_, T, W> {
             .await?;
         }
         Ok(())
+    }
+}
+
+/// Collects the engine's results into the queue.
+struct QueueSink<'a> {
+    results: &'a mut [SubapertureResult],
+    queued: &'a mut usize,
+    lost: u32,
+    done: bool,
+}
+
+impl OutputSink for QueueSink<'_> {
+    fn subaperture(&mut self, result: SubapertureResult) {
+        match self.results.get_mut(*self.queued) {
+            Some(slot) => {
+                *slot = result;
+                *self.queued += 1;
+            }
+            // Only if a row finishes more windows than vetted; never.
+            None => self.lost += 1,
+        }
+    }
+
+    fn frame_complete(&mut self, _frame: u32) {
+        self.done = true;
     }
 }
