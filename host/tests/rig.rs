@@ -655,3 +655,111 @@ fn a_measured_link_rate_plans_the_rig() {
     drop(device);
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// A link that carries one board's share of whole row bands but not more:
+/// `rig plan` cuts runs of windows in raster order (5 and 4 of the 3x3
+/// windows, where bands give one board 6), whose rectangles overlap by a
+/// row of windows; `rig check` takes the file, and the boards, each
+/// computing only its own windows, stream a merge equal to `process` on the
+/// whole camera, verified bit for bit.
+#[test]
+fn runs_in_raster_order_overlap_and_merge_bit_for_bit() {
+    let dir = common::scratch("rig", "raster");
+    let config = common::small_wfs_config(&dir);
+    let whole = ProcessingConfig::load(&config).unwrap();
+    let (kind, model) = (BoardKind::Stm32h743, CostModel::STM32H743);
+    let bands = rig::plan(&whole, 2, kind, &model).unwrap();
+    let busiest = rig::loads(&whole, &bands.shares, kind, &model, Some(1000.0), false)
+        .iter()
+        .map(|l| l.result_bytes_per_s.unwrap())
+        .fold(0.0, f64::max);
+    let rate = format!("{:.6}", busiest * 0.92 / 1e6);
+    let rig_file = dir.join("rig.toml");
+    let (ok, text) = run(&[
+        "rig",
+        "plan",
+        "--config",
+        config.to_str().unwrap(),
+        "--boards",
+        "2",
+        "--camera-rate",
+        "1000",
+        "--link-rate",
+        &rate,
+        "--out",
+        rig_file.to_str().unwrap(),
+    ]);
+    assert!(
+        ok && text.contains("cut in runs of windows in raster order"),
+        "{text}"
+    );
+    let rig = Rig::load(&rig_file).unwrap();
+    let counts: Vec<usize> = rig.boards.iter().map(|b| b.windows.len()).collect();
+    assert_eq!(counts, [5, 4]);
+    let (upper, lower) = (rig.boards[0].rectangle, rig.boards[1].rectangle);
+    assert!(upper.y + upper.height > lower.y, "{upper:?} {lower:?}");
+    let (ok, text) = run(&["rig", "check", "--rig", rig_file.to_str().unwrap()]);
+    assert!(ok && !text.contains("warning"), "{text}");
+    // Two boards of bands at that link: refused, naming more boards.
+    let (ok, text) = run(&[
+        "rig",
+        "plan",
+        "--config",
+        config.to_str().unwrap(),
+        "--boards",
+        "2",
+        "--camera-rate",
+        "1000",
+        "--link-rate",
+        &format!("{:.6}", busiest * 0.7 / 1e6),
+    ]);
+    assert!(!ok && text.contains("(--boards 3)"), "{text}");
+
+    let pixels: Vec<u16> = frames(50).concat();
+    let frames_file = dir.join("frames.npy");
+    write_array(&frames_file, &[50, 48, 48], &pixels).unwrap();
+    let devices: Vec<InProcessDevice> = (0..2)
+        .map(|_| InProcessDevice::start_pty().unwrap())
+        .collect();
+    let ports = devices
+        .iter()
+        .map(|d| d.port().to_string())
+        .collect::<Vec<_>>()
+        .join(",");
+    let out = dir.join("merged.npy");
+    let (ok, text) = run(&[
+        "rig",
+        "stream",
+        "--rig",
+        rig_file.to_str().unwrap(),
+        "--ports",
+        &ports,
+        "--frames",
+        frames_file.to_str().unwrap(),
+        "--verify",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        ok && text.contains("verified: 50 merged frames") && text.contains("0 mismatches"),
+        "{text}"
+    );
+    let whole_out = dir.join("whole.npy");
+    let (ok, text) = run(&[
+        "process",
+        "--config",
+        config.to_str().unwrap(),
+        "--frames",
+        frames_file.to_str().unwrap(),
+        "--out",
+        whole_out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    for suffix in ["npy", "flux.npy", "valid.npy"] {
+        assert_eq!(
+            std::fs::read(dir.join(format!("merged.{suffix}"))).unwrap(),
+            std::fs::read(dir.join(format!("whole.{suffix}"))).unwrap(),
+            "{suffix}"
+        );
+    }
+}

@@ -32,7 +32,9 @@ pub struct PyRig {
 impl PyRig {
     /// Split ``config`` over ``boards`` boards of kind ``board``
     /// (``"stm32h743"``, ``"qemu-m4"``, ``"qemu-m7"``): row bands (column
-    /// strips when rows cannot balance) balanced by the bench's cost model;
+    /// strips when rows cannot balance) balanced by the bench's cost model,
+    /// or, with ``camera_rate``, runs of windows in raster order when only
+    /// those keep up (rectangles then overlap by a row of windows);
     /// with ``camera_rate`` (Hz), a ``ValueError`` naming the boards needed
     /// when these cannot keep up, their cores or their links: each board's
     /// results on its own link (the STM32H743's USB full speed, about 1

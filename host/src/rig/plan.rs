@@ -3,8 +3,11 @@
 //!
 //! The plan cuts the sensor into bands of rows between which no window
 //! crosses (columns when rows alone cannot give the boards an even share),
-//! balancing the predicted instructions per frame; each board captures the
-//! bounding rectangle of its windows, widened as its crop hardware needs.
+//! balancing the predicted instructions per frame; when a camera rate is
+//! given and no such cut keeps up but runs of windows in raster order do
+//! (a link-bound board's results follow its count of windows), those. Each
+//! board captures the bounding rectangle of its windows, widened as its
+//! crop hardware needs.
 
 use brightpix_protocol::{Camera, SubapertureWindow};
 
@@ -49,8 +52,29 @@ impl BoardLoad {
 /// How the plan cut the sensor.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Cut {
+    /// Bands of rows between which no window crosses.
     Rows,
+    /// Strips of columns between which no window crosses.
     Columns,
+    /// The windows in raster order (first row, then column), cut anywhere
+    /// into runs whose counts differ by one at most: a board's rectangle
+    /// is its run's bounding box, so neighbours' rectangles overlap where a
+    /// run ends inside a row of windows (each board still computes only its
+    /// own). Taken only when whole bands leave some board's link or core
+    /// behind and such runs do not ([`plan_keeping_up`]): a link-bound
+    /// board's results follow its count of windows, which bands can only
+    /// share out a row of windows at a time.
+    Raster,
+}
+
+impl Cut {
+    pub fn describe(self) -> &'static str {
+        match self {
+            Cut::Rows => "row bands",
+            Cut::Columns => "column strips",
+            Cut::Raster => "runs of windows in raster order (neighbouring rectangles overlap)",
+        }
+    }
 }
 
 /// Boards' shares of one camera.
@@ -75,6 +99,7 @@ fn bands(windows: &[SubapertureWindow], axis: Cut) -> Vec<Vec<usize>> {
     let span = |w: &SubapertureWindow| match axis {
         Cut::Rows => (w.y as u32, w.y as u32 + w.height as u32),
         Cut::Columns => (w.x as u32, w.x as u32 + w.width as u32),
+        Cut::Raster => unreachable!("raster runs are not bands"),
     };
     let mut order: Vec<usize> = (0..windows.len()).collect();
     order.sort_by_key(|&k| span(&windows[k]));
@@ -195,6 +220,36 @@ fn balance(
     cuts.windows(2).map(|c| Ok(share(c[0], c[1])?.0)).collect()
 }
 
+/// `config`'s windows over `boards` boards of `kind` as runs in raster
+/// order ([`Cut::Raster`]): the first `n mod boards` runs one window longer,
+/// so the board that ends the frame has the fewer windows to finish after
+/// its last pixel.
+fn raster(config: &ProcessingConfig, boards: usize, kind: BoardKind) -> Result<Plan, String> {
+    let windows = &config.windows;
+    let n = windows.len();
+    if boards == 0 || boards > n {
+        return Err(format!("{n} windows cannot make {boards} runs"));
+    }
+    let mut order: Vec<usize> = (0..n).collect();
+    order.sort_by_key(|&k| (windows[k].y, windows[k].x, k));
+    let shares = (0..boards)
+        .map(|b| {
+            let run = (b * n).div_ceil(boards)..((b + 1) * n).div_ceil(boards);
+            let mut members = order[run].to_vec();
+            members.sort_unstable();
+            let rectangle = rectangle_for(windows, &members, &config.camera, kind)?;
+            Ok(BoardShare {
+                rectangle,
+                windows: members,
+            })
+        })
+        .collect::<Result<Vec<_>, String>>()?;
+    Ok(Plan {
+        cut: Cut::Raster,
+        shares,
+    })
+}
+
 /// Splits `config`'s windows over `boards` boards of `kind`: row bands
 /// when the windows fall into at least `boards` of them and they balance
 /// as well as column strips, else column strips.
@@ -221,10 +276,7 @@ pub fn plan(
             why.push(format!(
                 "the windows fall into {} {} that no cut crosses",
                 bands.len(),
-                match cut {
-                    Cut::Rows => "row bands",
-                    Cut::Columns => "column strips",
-                }
+                cut.describe()
             ));
             continue;
         }
@@ -314,8 +366,10 @@ fn loads_with(
 }
 
 /// Plans with the fewest boards (from `boards` up) whose every board keeps
-/// up with `camera_rate`, its core and its link ([`BoardLoad::keeps_up`]);
-/// `boards` itself when the rate is unknown. The error names the fix.
+/// up with `camera_rate`, its core and its link ([`BoardLoad::keeps_up`]):
+/// bands ([`plan`]), else runs of windows in raster order ([`Cut::Raster`])
+/// if those keep up; `boards` itself when the rate is unknown. The error
+/// names the fix.
 pub fn plan_keeping_up(
     config: &ProcessingConfig,
     boards: usize,
@@ -324,10 +378,29 @@ pub fn plan_keeping_up(
     camera_rate: Option<f64>,
 ) -> Result<(Plan, Vec<BoardLoad>), PlanError> {
     let bounds = ResultBounds::of(config);
+    let loads_of =
+        |p: &Plan| loads_with(config, &bounds, &p.shares, kind, model, camera_rate, false);
+    // Bands first; runs in raster order only where they keep up and the
+    // bands do not (or cannot be cut for `k` boards).
     let plan_k = |k: usize| -> Result<(Plan, Vec<BoardLoad>), PlanError> {
-        let p = plan(config, k, kind, model)?;
-        let l = loads_with(config, &bounds, &p.shares, kind, model, camera_rate, false);
-        Ok((p, l))
+        let banded = plan(config, k, kind, model).map(|p| {
+            let l = loads_of(&p);
+            (p, l)
+        });
+        if banded
+            .as_ref()
+            .is_ok_and(|(_, l)| l.iter().all(BoardLoad::keeps_up))
+            || camera_rate.is_none()
+        {
+            return banded;
+        }
+        if let Ok(p) = raster(config, k, kind) {
+            let l = loads_of(&p);
+            if l.iter().all(BoardLoad::keeps_up) {
+                return Ok((p, l));
+            }
+        }
+        banded
     };
     let (p, l) = plan_k(boards)?;
     if l.iter().all(BoardLoad::keeps_up) {
@@ -574,5 +647,48 @@ mod tests {
             false,
         );
         assert!(qemu.iter().all(|l| l.link_load.is_none()));
+    }
+
+    /// 240x240 of 16x16 windows at 2 kHz on USB full speed: whole bands
+    /// need more boards than runs of windows in raster order, which share
+    /// the windows out to one (and so the link's load); every window is on
+    /// exactly one board, inside its rectangle; where runs keep up, bands
+    /// still come first.
+    #[test]
+    fn raster_runs_when_bands_leave_a_link_behind() {
+        let mut config = crate::bench::workloads::ocam240_config();
+        config.camera.bit_depth = 12;
+        let (kind, model) = (BoardKind::Stm32h743, CostModel::STM32H743);
+        let needed = |p: Result<(Plan, Vec<BoardLoad>), PlanError>| match p {
+            Ok((p, _)) => p.shares.len(),
+            Err(e) => boards_named(&e.to_string()),
+        };
+        let k = needed(plan_keeping_up(&config, 2, kind, &model, Some(2000.0)));
+        let (p, loads) = plan_keeping_up(&config, k, kind, &model, Some(2000.0)).unwrap();
+        assert_eq!(p.cut, Cut::Raster);
+        assert!(loads.iter().all(BoardLoad::keeps_up));
+        // Bands alone: one board of `k` falls behind on its link.
+        let banded = plan(&config, k, kind, &model).unwrap();
+        let banded_loads = super::loads(&config, &banded.shares, kind, &model, Some(2000.0), false);
+        assert!(banded_loads.iter().any(|l| l.link_load.unwrap() > 1.0));
+        let counts: Vec<usize> = p.shares.iter().map(|s| s.windows.len()).collect();
+        let (least, most) = (counts.iter().min().unwrap(), counts.iter().max().unwrap());
+        assert!(most - least <= 1, "{counts:?}");
+        let mut seen = vec![0; config.windows.len()];
+        for s in &p.shares {
+            for &w in &s.windows {
+                seen[w] += 1;
+                assert!(s.rectangle.holds(&config.windows[w]));
+            }
+        }
+        assert!(seen.iter().all(|&c| c == 1));
+        // Some neighbours overlap: a run ends inside a row of windows.
+        assert!(p
+            .shares
+            .windows(2)
+            .any(|w| w[0].rectangle.y + w[0].rectangle.height > w[1].rectangle.y));
+        // At 1 kHz three boards of bands keep up: bands.
+        let (p, _) = plan_keeping_up(&config, 3, kind, &model, Some(1000.0)).unwrap();
+        assert_eq!(p.cut, Cut::Rows);
     }
 }

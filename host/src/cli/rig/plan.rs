@@ -104,7 +104,7 @@ pub(super) fn run(args: PlanArgs) -> Result<()> {
     rig.link_mb_per_s = args.link_rate;
     if args.shared_rows {
         if plan.cut != rig::Cut::Rows || rig.boards.len() < 2 {
-            bail!("--shared-rows: the plan has no two bands of rows to overlap (it cut column strips, or one board)");
+            bail!("--shared-rows: the plan has no two bands of rows to overlap (it cut column strips or runs of windows, or one board)");
         }
         rig = rig
             .with_shared_rows()
@@ -132,10 +132,7 @@ pub(super) fn run(args: PlanArgs) -> Result<()> {
         args.config.display(),
         rig.boards.len(),
         args.board.name(),
-        match plan.cut {
-            rig::Cut::Rows => "row bands",
-            rig::Cut::Columns => "column strips",
-        }
+        plan.cut.describe()
     );
     print_rig(&rig, &model, Some(&loads));
     let config_name = match &args.out {
