@@ -212,6 +212,65 @@ fn a_board_with_another_configuration_is_refused_before_any_frame() {
     assert!(e.to_string().contains("not its part of the rig"), "{e}");
 }
 
+/// `rig stream --verify --out DIR/merged.npy` of `frames` frames to
+/// `boards` in-process devices: every merged frame verified, and the merged
+/// files equal `process` on the whole camera (`DIR/whole.npy`).
+fn stream_equals_process(
+    dir: &std::path::Path,
+    config: &std::path::Path,
+    rig_file: &std::path::Path,
+    frames_file: &std::path::Path,
+    boards: usize,
+    frames: usize,
+) {
+    let devices: Vec<InProcessDevice> = (0..boards)
+        .map(|_| InProcessDevice::start_pty().unwrap())
+        .collect();
+    let ports = devices
+        .iter()
+        .map(|d| d.port().to_string())
+        .collect::<Vec<_>>()
+        .join(",");
+    let out = dir.join("merged.npy");
+    let (ok, text) = run(&[
+        "rig",
+        "stream",
+        "--rig",
+        rig_file.to_str().unwrap(),
+        "--ports",
+        &ports,
+        "--frames",
+        frames_file.to_str().unwrap(),
+        "--verify",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    assert!(
+        text.contains(&format!("verified: {frames} merged frames"))
+            && text.contains("0 mismatches"),
+        "{text}"
+    );
+    let whole_out = dir.join("whole.npy");
+    let (ok, text) = run(&[
+        "process",
+        "--config",
+        config.to_str().unwrap(),
+        "--frames",
+        frames_file.to_str().unwrap(),
+        "--out",
+        whole_out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{text}");
+    for suffix in ["npy", "flux.npy", "valid.npy"] {
+        assert_eq!(
+            std::fs::read(dir.join(format!("merged.{suffix}"))).unwrap(),
+            std::fs::read(dir.join(format!("whole.{suffix}"))).unwrap(),
+            "{suffix}"
+        );
+    }
+}
+
 #[test]
 fn plan_check_and_stream_from_the_command_line() {
     let dir = common::scratch("rig", "cli");
@@ -252,52 +311,7 @@ fn plan_check_and_stream_from_the_command_line() {
     let pixels: Vec<u16> = frames(600).concat();
     let frames_file = dir.join("frames.npy");
     write_array(&frames_file, &[600, 48, 48], &pixels).unwrap();
-    let devices: Vec<InProcessDevice> = (0..3)
-        .map(|_| InProcessDevice::start_pty().unwrap())
-        .collect();
-    let ports = devices
-        .iter()
-        .map(|d| d.port().to_string())
-        .collect::<Vec<_>>()
-        .join(",");
-    let out = dir.join("merged.npy");
-    let (ok, text) = run(&[
-        "rig",
-        "stream",
-        "--rig",
-        rig_file.to_str().unwrap(),
-        "--ports",
-        &ports,
-        "--frames",
-        frames_file.to_str().unwrap(),
-        "--verify",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(ok, "{text}");
-    assert!(
-        text.contains("verified: 600 merged frames") && text.contains("0 mismatches"),
-        "{text}"
-    );
-    // The merged file equals `process` on the whole camera.
-    let whole_out = dir.join("whole.npy");
-    let (ok, text) = run(&[
-        "process",
-        "--config",
-        config.to_str().unwrap(),
-        "--frames",
-        frames_file.to_str().unwrap(),
-        "--out",
-        whole_out.to_str().unwrap(),
-    ]);
-    assert!(ok, "{text}");
-    for suffix in ["npy", "flux.npy", "valid.npy"] {
-        assert_eq!(
-            std::fs::read(dir.join(format!("merged.{suffix}"))).unwrap(),
-            std::fs::read(dir.join(format!("whole.{suffix}"))).unwrap(),
-            "{suffix}"
-        );
-    }
+    stream_equals_process(&dir, &config, &rig_file, &frames_file, 3, 600);
     let provenance = std::fs::read_to_string(dir.join("merged.json")).unwrap();
     assert!(
         provenance.contains("board-0 0-2; board-1 3-5; board-2 6-8"),
@@ -718,48 +732,5 @@ fn runs_in_raster_order_overlap_and_merge_bit_for_bit() {
     let pixels: Vec<u16> = frames(50).concat();
     let frames_file = dir.join("frames.npy");
     write_array(&frames_file, &[50, 48, 48], &pixels).unwrap();
-    let devices: Vec<InProcessDevice> = (0..2)
-        .map(|_| InProcessDevice::start_pty().unwrap())
-        .collect();
-    let ports = devices
-        .iter()
-        .map(|d| d.port().to_string())
-        .collect::<Vec<_>>()
-        .join(",");
-    let out = dir.join("merged.npy");
-    let (ok, text) = run(&[
-        "rig",
-        "stream",
-        "--rig",
-        rig_file.to_str().unwrap(),
-        "--ports",
-        &ports,
-        "--frames",
-        frames_file.to_str().unwrap(),
-        "--verify",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(
-        ok && text.contains("verified: 50 merged frames") && text.contains("0 mismatches"),
-        "{text}"
-    );
-    let whole_out = dir.join("whole.npy");
-    let (ok, text) = run(&[
-        "process",
-        "--config",
-        config.to_str().unwrap(),
-        "--frames",
-        frames_file.to_str().unwrap(),
-        "--out",
-        whole_out.to_str().unwrap(),
-    ]);
-    assert!(ok, "{text}");
-    for suffix in ["npy", "flux.npy", "valid.npy"] {
-        assert_eq!(
-            std::fs::read(dir.join(format!("merged.{suffix}"))).unwrap(),
-            std::fs::read(dir.join(format!("whole.{suffix}"))).unwrap(),
-            "{suffix}"
-        );
-    }
+    stream_equals_process(&dir, &config, &rig_file, &frames_file, 2, 50);
 }
