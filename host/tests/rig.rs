@@ -687,22 +687,26 @@ fn runs_in_raster_order_overlap_and_merge_bit_for_bit() {
         .iter()
         .map(|l| l.result_bytes_per_s.unwrap())
         .fold(0.0, f64::max);
-    let rate = format!("{:.6}", busiest * 0.92 / 1e6);
+    // Two boards at 1 kHz on a link of `share` of that busiest band's results.
+    let plan_two = |share: f64, extra: &[&str]| {
+        let rate = format!("{:.6}", busiest * share / 1e6);
+        let mut args = vec![
+            "rig",
+            "plan",
+            "--config",
+            config.to_str().unwrap(),
+            "--boards",
+            "2",
+            "--camera-rate",
+            "1000",
+            "--link-rate",
+            &rate,
+        ];
+        args.extend_from_slice(extra);
+        run(&args)
+    };
     let rig_file = dir.join("rig.toml");
-    let (ok, text) = run(&[
-        "rig",
-        "plan",
-        "--config",
-        config.to_str().unwrap(),
-        "--boards",
-        "2",
-        "--camera-rate",
-        "1000",
-        "--link-rate",
-        &rate,
-        "--out",
-        rig_file.to_str().unwrap(),
-    ]);
+    let (ok, text) = plan_two(0.92, &["--out", rig_file.to_str().unwrap()]);
     assert!(
         ok && text.contains("cut in runs of windows in raster order"),
         "{text}"
@@ -714,19 +718,8 @@ fn runs_in_raster_order_overlap_and_merge_bit_for_bit() {
     assert!(upper.y + upper.height > lower.y, "{upper:?} {lower:?}");
     let (ok, text) = run(&["rig", "check", "--rig", rig_file.to_str().unwrap()]);
     assert!(ok && !text.contains("warning"), "{text}");
-    // Two boards of bands at that link: refused, naming more boards.
-    let (ok, text) = run(&[
-        "rig",
-        "plan",
-        "--config",
-        config.to_str().unwrap(),
-        "--boards",
-        "2",
-        "--camera-rate",
-        "1000",
-        "--link-rate",
-        &format!("{:.6}", busiest * 0.7 / 1e6),
-    ]);
+    // A link that takes neither five results nor six: refused, naming three boards.
+    let (ok, text) = plan_two(0.7, &[]);
     assert!(!ok && text.contains("(--boards 3)"), "{text}");
 
     let pixels: Vec<u16> = frames(50).concat();
