@@ -177,12 +177,7 @@ pub fn run(args: CaptureArgs) -> Result<()> {
         dropped += usize::from(!matches!(o, FrameOutcome::Done(_)));
         invalid.outcome(o, n);
         for s in o.slopes().by_index(n) {
-            results.push(s.map(|s| Raw {
-                slope_x: s.slope_x,
-                slope_y: s.slope_y,
-                flux: s.flux,
-                valid: s.valid,
-            }));
+            results.push(s.map(Raw::from));
         }
     }
     if let Some(out) = &args.out {

@@ -403,14 +403,7 @@ impl SlopesFile {
             .slopes()
             .by_index(subapertures)
             .into_iter()
-            .map(|e| {
-                e.map(|e| Raw {
-                    slope_x: e.slope_x,
-                    slope_y: e.slope_y,
-                    flux: e.flux,
-                    valid: e.valid,
-                })
-            })
+            .map(|e| e.map(Raw::from))
             .collect();
         let next = *self.next.get_or_insert(o.frame());
         self.waiting.insert(o.frame(), row);

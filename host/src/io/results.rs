@@ -371,6 +371,18 @@ pub struct Raw {
     pub valid: bool,
 }
 
+/// A device's result as it came on the wire (its index is its place).
+impl From<brightpix_protocol::wire::SlopeEntry> for Raw {
+    fn from(e: brightpix_protocol::wire::SlopeEntry) -> Raw {
+        Raw {
+            slope_x: e.slope_x,
+            slope_y: e.slope_y,
+            flux: e.flux,
+            valid: e.valid,
+        }
+    }
+}
+
 impl Results {
     pub fn new(subapertures: usize) -> Self {
         Results {

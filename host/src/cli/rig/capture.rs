@@ -156,12 +156,7 @@ pub(super) fn capture_and_report(
     let progress = crate::cli::progress::Progress::new(u64::from(count), "frames");
     let mut on_frame = |m: &MergedFrame| {
         for r in &m.results {
-            results.push(r.map(|e| Raw {
-                slope_x: e.slope_x,
-                slope_y: e.slope_y,
-                flux: e.flux,
-                valid: e.valid,
-            }));
+            results.push(r.map(Raw::from));
         }
         progress.inc(1);
     };

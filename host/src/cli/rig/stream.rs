@@ -164,12 +164,7 @@ pub(super) fn run_and_report(
             );
         }
         for r in &m.results {
-            results.push(r.map(|e| Raw {
-                slope_x: e.slope_x,
-                slope_y: e.slope_y,
-                flux: e.flux,
-                valid: e.valid,
-            }));
+            results.push(r.map(Raw::from));
         }
         progress.inc(1);
     };
