@@ -680,33 +680,9 @@ fn a_measured_link_rate_plans_the_rig() {
 fn runs_in_raster_order_overlap_and_merge_bit_for_bit() {
     let dir = common::scratch("rig", "raster");
     let config = common::small_wfs_config(&dir);
-    let whole = ProcessingConfig::load(&config).unwrap();
-    let (kind, model) = (BoardKind::Stm32h743, CostModel::STM32H743);
-    let bands = rig::plan(&whole, 2, kind, &model).unwrap();
-    let busiest = rig::loads(&whole, &bands.shares, kind, &model, Some(1000.0), false)
-        .iter()
-        .map(|l| l.result_bytes_per_s.unwrap())
-        .fold(0.0, f64::max);
-    // Two boards at 1 kHz on a link of `share` of that busiest band's results.
-    let plan_two = |share: f64, extra: &[&str]| {
-        let rate = format!("{:.6}", busiest * share / 1e6);
-        let mut args = vec![
-            "rig",
-            "plan",
-            "--config",
-            config.to_str().unwrap(),
-            "--boards",
-            "2",
-            "--camera-rate",
-            "1000",
-            "--link-rate",
-            &rate,
-        ];
-        args.extend_from_slice(extra);
-        run(&args)
-    };
     let rig_file = dir.join("rig.toml");
-    let (ok, text) = plan_two(0.92, &["--out", rig_file.to_str().unwrap()]);
+    let (ok, text) =
+        common::plan_two_on_a_link(&config, 0.92, &["--out", rig_file.to_str().unwrap()]);
     assert!(
         ok && text.contains("cut in runs of windows in raster order"),
         "{text}"
@@ -719,7 +695,7 @@ fn runs_in_raster_order_overlap_and_merge_bit_for_bit() {
     let (ok, text) = run(&["rig", "check", "--rig", rig_file.to_str().unwrap()]);
     assert!(ok && !text.contains("warning"), "{text}");
     // A link that takes neither five results nor six: refused, naming three boards.
-    let (ok, text) = plan_two(0.7, &[]);
+    let (ok, text) = common::plan_two_on_a_link(&config, 0.7, &[]);
     assert!(!ok && text.contains("(--boards 3)"), "{text}");
 
     let pixels: Vec<u16> = frames(50).concat();

@@ -27,6 +27,36 @@ pub fn run(args: &[&str]) -> (bool, String) {
     (out.status.success(), text)
 }
 
+/// `rig plan --boards 2 --camera-rate 1000` of `config` (the 3x3 windows of
+/// [`small_wfs_config`]) on a link (`--link-rate`) of `share` of what the
+/// busier of two bands of whole rows (6 windows) sends at 1 kHz: at 0.92,
+/// runs of 5 and 4 windows in raster order keep up where the bands do not.
+pub fn plan_two_on_a_link(config: &std::path::Path, share: f64, extra: &[&str]) -> (bool, String) {
+    use brightpix::rig::{self, BoardKind, CostModel};
+    let whole = brightpix::config_file::ProcessingConfig::load(config).unwrap();
+    let (kind, model) = (BoardKind::Stm32h743, CostModel::STM32H743);
+    let bands = rig::plan(&whole, 2, kind, &model).unwrap();
+    let busiest = rig::loads(&whole, &bands.shares, kind, &model, Some(1000.0), false)
+        .iter()
+        .map(|l| l.result_bytes_per_s.unwrap())
+        .fold(0.0, f64::max);
+    let rate = format!("{:.6}", busiest * share / 1e6);
+    let mut args = vec![
+        "rig",
+        "plan",
+        "--config",
+        config.to_str().unwrap(),
+        "--boards",
+        "2",
+        "--camera-rate",
+        "1000",
+        "--link-rate",
+        &rate,
+    ];
+    args.extend_from_slice(extra);
+    run(&args)
+}
+
 /// The rig tests' camera: 48x48, 12 bits, 3x3 sub-apertures of 16x16,
 /// N = 6; written as `DIR/wfs.toml`, whose path is returned.
 pub fn small_wfs_config(dir: &std::path::Path) -> PathBuf {
