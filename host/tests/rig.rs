@@ -624,21 +624,14 @@ fn a_measured_link_rate_plans_the_rig() {
 
     // A link of 0.2 MB/s: one board's results (0.3 MB/s at 2 kHz)
     // overflow it, the plan names more boards, and those keep up.
-    let slow = |boards: &str| {
-        run(&[
-            "rig",
-            "plan",
-            "--config",
-            config.to_str().unwrap(),
-            "--boards",
+    let slow = |boards: usize| {
+        common::plan_boards(
+            &config,
             boards,
-            "--camera-rate",
-            "2000",
-            "--link-rate",
-            "0.2",
-        ])
+            &["--camera-rate", "2000", "--link-rate", "0.2"],
+        )
     };
-    let (ok, text) = slow("1");
+    let (ok, text) = slow(1);
     assert!(
         !ok && text.contains("of its measured link (about 0.20 MB/s)"),
         "{text}"
@@ -648,20 +641,12 @@ fn a_measured_link_rate_plans_the_rig() {
         .nth(1)
         .and_then(|t| t.split(')').next())
         .unwrap_or_else(|| panic!("no count named: {text}"));
-    assert!(more.parse::<usize>().unwrap() > 1, "{text}");
+    let more: usize = more.parse().unwrap();
+    assert!(more > 1, "{text}");
     let (ok, text) = slow(more);
     assert!(ok && text.contains("link_mb_per_s = 0.2"), "{text}");
     // Not a rate: refused before anything is planned.
-    let (ok, text) = run(&[
-        "rig",
-        "plan",
-        "--config",
-        config.to_str().unwrap(),
-        "--boards",
-        "3",
-        "--link-rate",
-        "0",
-    ]);
+    let (ok, text) = common::plan_boards(&config, 3, &["--link-rate", "0"]);
     assert!(
         !ok && text.contains("--link-rate 0: must be a positive number of MB/s"),
         "{text}"

@@ -41,20 +41,9 @@ pub fn plan_two_on_a_link(config: &std::path::Path, share: f64, extra: &[&str]) 
         .map(|l| l.result_bytes_per_s.unwrap())
         .fold(0.0, f64::max);
     let rate = format!("{:.6}", busiest * share / 1e6);
-    let mut args = vec![
-        "rig",
-        "plan",
-        "--config",
-        config.to_str().unwrap(),
-        "--boards",
-        "2",
-        "--camera-rate",
-        "1000",
-        "--link-rate",
-        &rate,
-    ];
+    let mut args = vec!["--camera-rate", "1000", "--link-rate", &rate];
     args.extend_from_slice(extra);
-    run(&args)
+    plan_boards(config, 2, &args)
 }
 
 /// The rig tests' camera: 48x48, 12 bits, 3x3 sub-apertures of 16x16,
@@ -71,19 +60,24 @@ pub fn small_wfs_config(dir: &std::path::Path) -> PathBuf {
     config
 }
 
-/// Runs `brightpix rig plan --config CONFIG --boards 3 EXTRA..` and
-/// returns what it printed; panics if it fails.
-pub fn plan_three_boards(config: &std::path::Path, extra: &[&str]) -> String {
+/// Runs `brightpix rig plan --config CONFIG --boards BOARDS EXTRA..`.
+pub fn plan_boards(config: &std::path::Path, boards: usize, extra: &[&str]) -> (bool, String) {
+    let boards = boards.to_string();
     let mut args = vec![
         "rig",
         "plan",
         "--config",
         config.to_str().unwrap(),
         "--boards",
-        "3",
+        &boards,
     ];
     args.extend_from_slice(extra);
-    let (ok, text) = run(&args);
+    run(&args)
+}
+
+/// [`plan_boards`] with three boards: what it printed; panics if it fails.
+pub fn plan_three_boards(config: &std::path::Path, extra: &[&str]) -> String {
+    let (ok, text) = plan_boards(config, 3, extra);
     assert!(ok, "{text}");
     text
 }
