@@ -396,7 +396,10 @@ pub fn plan_keeping_up(
         }
         if let Ok(p) = raster(config, k, kind) {
             let l = loads_of(&p);
-            if l.iter().all(BoardLoad::keeps_up) {
+            // Runs that fall behind too are still a split of `k` boards
+            // where bands are none: the caller then names the count that
+            // keeps up, not "fewer boards".
+            if l.iter().all(BoardLoad::keeps_up) || banded.is_err() {
                 return Ok((p, l));
             }
         }
@@ -690,5 +693,27 @@ mod tests {
         // At 1 kHz three boards of bands keep up: bands.
         let (p, _) = plan_keeping_up(&config, 3, kind, &model, Some(1000.0)).unwrap();
         assert_eq!(p.cut, Cut::Rows);
+    }
+
+    /// More boards than CANARY's seven bands, at a rate that eight runs
+    /// cannot serve either: the error names the count that keeps up (runs),
+    /// not "fewer boards"; without a rate, eight boards are refused as
+    /// before (no bands to give them).
+    #[test]
+    fn more_boards_than_bands_names_the_count_that_keeps_up() {
+        let config = canary();
+        let (kind, model) = (BoardKind::Stm32h743, CostModel::STM32H743);
+        let text = plan_keeping_up(&config, 8, kind, &model, Some(15000.0))
+            .unwrap_err()
+            .to_string();
+        assert!(text.contains("cannot keep up"), "{text}");
+        let k = boards_named(&text);
+        assert!(k > 8, "{text}");
+        let (p, _) = plan_keeping_up(&config, k, kind, &model, Some(15000.0)).unwrap();
+        assert_eq!(p.cut, Cut::Raster);
+        let text = plan_keeping_up(&config, 8, kind, &model, None)
+            .unwrap_err()
+            .to_string();
+        assert!(text.contains("cannot give 8 boards"), "{text}");
     }
 }
