@@ -281,6 +281,18 @@ fn floor_row_selftest(rng: &mut Rng) {
 
 #[entry]
 fn main() -> ! {
+    // A name that is no workload is refused before any work (else the
+    // bench would measure nothing and say nothing of it).
+    let only = only_workload();
+    if let Some(name) = &only {
+        if !workloads::ALL.iter().any(|w| w.name == name.as_str()) {
+            println!("--only {}: no such workload; the workloads are:", name);
+            for w in workloads::ALL {
+                println!("  {}", w.name);
+            }
+            fail("--only names no workload");
+        }
+    }
     let (meter, shift) = Meter::calibrate();
     let core = meter::core_name();
     match shift {
@@ -325,7 +337,6 @@ fn main() -> ! {
         "memory",
         "rescans"
     );
-    let only = only_workload();
     for w in workloads::ALL {
         if only.as_ref().is_some_and(|name| name.as_str() != w.name) {
             continue;
