@@ -160,19 +160,7 @@ fn overlapping_rectangles_capture_bit_for_bit() {
     let synced_file = with_sync_line(&rig_file);
     let (devices, _) = boards_on_one_camera();
     let ports = format!("{},{}", devices[0].port(), devices[1].port());
-    let (ok, text) = run(&[
-        "rig",
-        "capture",
-        "--rig",
-        synced_file.to_str().unwrap(),
-        "--ports",
-        &ports,
-        "--count",
-        "20",
-        "--verify",
-        "--seed",
-        "4",
-    ]);
+    let (ok, text) = capture_twenty_verified(&synced_file, &ports);
     assert!(
         ok && text.contains("verified: 20 merged frames, 180 sub-aperture results")
             && text.contains(": 0 mismatches"),
@@ -211,21 +199,7 @@ fn simulated_boards_of_one_camera_from_the_command_line() {
     let mut lines = std::io::BufReader::new(child.stdout.take().unwrap()).lines();
     let ports: Vec<String> = (0..3).map(|_| lines.next().unwrap().unwrap()).collect();
     let ports = ports.join(",");
-    let capture = |rig: &std::path::Path| {
-        run(&[
-            "rig",
-            "capture",
-            "--rig",
-            rig.to_str().unwrap(),
-            "--ports",
-            &ports,
-            "--count",
-            "20",
-            "--verify",
-            "--seed",
-            "4",
-        ])
-    };
+    let capture = |rig: &std::path::Path| capture_twenty_verified(rig, &ports);
     let (skewed_ok, skewed) = capture(&rig_file);
     let (synced_ok, synced) = capture(&synced_file);
     let _ = child.kill();
@@ -307,6 +281,24 @@ fn shared_rows_catch_boards_on_different_frames_without_a_reference() {
     assert_eq!(run.edge_check.frames_checked, 10);
     assert_eq!(run.edge_check.frames_disagreeing, 10);
     assert!(!v.all_match());
+}
+
+/// `rig capture --rig RIG --ports PORTS --count 20 --verify --seed 4` (the
+/// seed of [`boards_on_one_camera`]'s camera).
+fn capture_twenty_verified(rig: &std::path::Path, ports: &str) -> (bool, String) {
+    run(&[
+        "rig",
+        "capture",
+        "--rig",
+        rig.to_str().unwrap(),
+        "--ports",
+        ports,
+        "--count",
+        "20",
+        "--verify",
+        "--seed",
+        "4",
+    ])
 }
 
 /// `rig.toml` as `rig plan` wrote it, its commented `[sync]` section
