@@ -33,11 +33,13 @@ from ._brightpix import (
     Rig,
     SimulatedDevice,
     Simulation,
+    TuneResult,
     __version__,
     centroid,
     process,
     read_frames,
     simulate,
+    tune,
 )
 
 if TYPE_CHECKING:
@@ -53,12 +55,14 @@ __all__ = [
     "SimulatedDevice",
     "SimulatedPort",
     "Simulation",
+    "TuneResult",
     "__version__",
     "centroid",
     "process",
     "read_frames",
     "simulate",
     "simulated_device",
+    "tune",
 ]
 
 

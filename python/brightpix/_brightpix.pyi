@@ -192,4 +192,43 @@ def simulate(
     *,
     grid: tuple[int, int] = (1, 1),
 ) -> Simulation: ...
+
+class TuneResult:
+    @property
+    def config(self) -> Config: ...
+    @property
+    def rule(self) -> str: ...
+    @property
+    def score(self) -> str: ...
+    @property
+    def assumptions(self) -> list[str]: ...
+    @property
+    def dark(self) -> list[int]: ...
+    @property
+    def truncated(self) -> list[int]: ...
+    @property
+    def classes(self) -> list[dict[str, Any]]: ...
+    @property
+    def scores(self) -> dict[str, Any]: ...
+    def save(self, directory: StrPath, name: str = "tuned") -> list[Path]: ...
+
+def tune(
+    config: Config,
+    conditions: Mapping[str, Any] | None = None,
+    *,
+    frames: int = 4000,
+    seed: int = 1,
+    recorded: npt.NDArray[np.uint16] | npt.NDArray[np.uint8] | None = None,
+    lgs: str | None = None,
+    launch: tuple[float, float] = (0.0, 0.0),
+    lgs_spot: float = 0.28,
+    obscuration: float = 0.0,
+    illumination_threshold: float = 0.5,
+    keep_dark: bool = False,
+    score: Literal["along", "pooled"] | None = None,
+    level_filter: int | None = None,
+    classes: int = 4,
+    angle_classes: int = 2,
+    max_truncation: float = 0.05,
+) -> TuneResult: ...
 def _config_from_keywords(keywords: Mapping[str, Any]) -> Config: ...

@@ -13,6 +13,7 @@ mod frames;
 mod process;
 mod rig;
 mod simulate;
+mod tune;
 
 use pyo3::prelude::*;
 
@@ -34,5 +35,7 @@ fn _brightpix(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<rig::PyRig>()?;
     m.add_class::<simulate::PySimulation>()?;
     m.add_function(wrap_pyfunction!(simulate::simulate, m)?)?;
+    m.add_class::<tune::PyTuneResult>()?;
+    m.add_function(wrap_pyfunction!(tune::tune_instrument, m)?)?;
     Ok(())
 }

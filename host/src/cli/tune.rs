@@ -1,14 +1,12 @@
 //! `brightpix tune`: the best rule and N for the user's instrument.
 
 use crate::config_file::ProcessingConfig;
-use crate::evaluation::plot::{self, Marker, Plot, Series, COLORS};
-use crate::evaluation::recorded::{measure, shift_and_add_fwhm, Measured};
 use crate::evaluation::tune::{
-    candidate_methods, jobs_per_class, plan, pupil_mse, tune, Conditions, Lgs, PupilModel,
-    TuneOptions, TuneResult,
+    jobs_per_class, output, parse_score, plan, pupil_mse, tune, Lgs, Prepared, PupilModel,
+    TuneRequest,
 };
 use crate::evaluation::Axis;
-use crate::simulator::{SimulationParams, Simulator, SpotModel};
+use crate::simulator::{SimulationParams, SpotModel};
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -163,9 +161,7 @@ fn check_out(out: &Path, name: &str) -> Result<()> {
             out.display()
         );
     }
-    if name.is_empty() || name.contains(['/', '\\']) || name.starts_with('.') {
-        bail!("--name {name:?}: must be a plain file name");
-    }
+    output::check_name(name).context("--name")?;
     std::fs::create_dir_all(out).with_context(|| format!("--out {}", out.display()))?;
     let probe = out.join(format!(".{name}.write-test"));
     std::fs::write(&probe, b"")
@@ -177,42 +173,11 @@ fn check_out(out: &Path, name: &str) -> Result<()> {
 /// Everything checked and derived before the simulation starts.
 struct Setup {
     config: ProcessingConfig,
-    conditions: Conditions,
-    options: TuneOptions,
-    measured: Option<Measured>,
-    fitted_r0: Option<(f64, f64, f64)>,
+    prepared: Prepared,
 }
 
-fn setup(args: &TuneArgs) -> Result<Setup> {
-    if args.count < 20 {
-        bail!(
-            "--count {}: at least 20 frames per class are needed for a standard error",
-            args.count
-        );
-    }
-    if args.classes == 0 {
-        bail!("--classes 0: at least one distance class is needed");
-    }
-    if args.angle_classes == 0 {
-        bail!("--angle-classes 0: at least one azimuth class is needed");
-    }
-    if !(0.0..1.0).contains(&args.max_truncation) {
-        bail!(
-            "--max-truncation must be in 0..1, got {}",
-            args.max_truncation
-        );
-    }
-    if !(0.0..=1.0).contains(&args.illumination_threshold) || args.illumination_threshold == 0.0 {
-        bail!(
-            "--illumination-threshold must be in (0, 1], got {}",
-            args.illumination_threshold
-        );
-    }
-    if let Some(g) = args.level_filter {
-        if !(1..=16).contains(&g) {
-            bail!("--level-filter must be 1..=16, got {g}");
-        }
-    }
+/// The request the options make; refused, like the rest, before any work.
+fn request(args: &TuneArgs) -> Result<TuneRequest> {
     let spot_model = SpotModel::parse(&args.spot_model).ok_or_else(|| {
         anyhow!(
             "--spot-model {:?}: one of effective-wavelength, wfs-wavelength, wfs-wavelength-blurred",
@@ -220,12 +185,49 @@ fn setup(args: &TuneArgs) -> Result<Setup> {
         )
     })?;
     let lgs = args.lgs.as_deref().map(Lgs::parse).transpose()?;
-    let score_axis = match (args.score.as_deref(), lgs.is_some()) {
-        (None, true) | (Some("along"), _) => Axis::Along,
-        (None, false) | (Some("pooled"), _) => Axis::Both,
-        (Some(other), _) => bail!("--score {other:?}: one of along, pooled"),
+    let score = args
+        .score
+        .as_deref()
+        .map(parse_score)
+        .transpose()
+        .context("--score")?;
+    let request = TuneRequest {
+        params: SimulationParams {
+            telescope_diameter_m: args.telescope,
+            pixel_scale_arcsec: args.pixel_scale,
+            wavelength_m: args.wavelength,
+            airy_diameter_arcsec: args.airy,
+            spot_model,
+            r0_m: args.r0,
+            outer_scale_m: args.outer_scale,
+            photons: args.photons,
+            read_noise_e: args.read_noise,
+            gain_e_per_count: args.gain,
+            background_error: args.background_error,
+            ..SimulationParams::canary()
+        },
+        subapertures_across: args.subapertures_across,
+        lgs,
+        launch_m: parse_launch(&args.launch)?,
+        lgs_spot_fwhm_arcsec: args.lgs_spot,
+        pupil: PupilModel {
+            obscuration_m: args.obscuration,
+            illumination_threshold: args.illumination_threshold,
+        },
+        score,
+        level_filter: args.level_filter,
+        frames: args.count,
+        seed: args.seed,
+        classes: args.classes,
+        angle_classes: args.angle_classes,
+        max_truncation: args.max_truncation,
     };
-    let launch_m = parse_launch(&args.launch)?;
+    request.check()?;
+    Ok(request)
+}
+
+fn setup(args: &TuneArgs) -> Result<Setup> {
+    let request = request(args)?;
     if let Some(path) = &args.frames {
         if !path.is_file() {
             bail!(
@@ -236,313 +238,19 @@ fn setup(args: &TuneArgs) -> Result<Setup> {
     }
     check_out(&args.out, &args.name)?;
     let config = ProcessingConfig::load(&args.config)?;
-    let across = args.subapertures_across.unwrap_or_else(|| {
-        config
-            .grid
-            .as_ref()
-            .map_or(7, |g| g.grid.columns.max(g.grid.rows) as u32)
-    });
-    let background = config.background.as_ref().map_or(0.0, |b| {
-        b.iter().map(|&v| v as f64).sum::<f64>() / b.len().max(1) as f64 / 16.0
-    });
-    let mut params = SimulationParams {
-        telescope_diameter_m: args.telescope,
-        subapertures_across: across,
-        pixel_scale_arcsec: args.pixel_scale,
-        wavelength_m: args.wavelength,
-        airy_diameter_arcsec: args.airy,
-        spot_model,
-        r0_m: args.r0,
-        outer_scale_m: args.outer_scale,
-        photons: args.photons,
-        read_noise_e: args.read_noise,
-        gain_e_per_count: args.gain,
-        background,
-        background_error: args.background_error,
-        bit_depth: config.camera.bit_depth,
-        ..SimulationParams::canary()
+    let recorded = match &args.frames {
+        Some(path) => Some(
+            crate::io::FrameSource::open_sensor(path, None, args.sensor.as_deref())
+                .and_then(|mut source| {
+                    source.set_camera(&config.camera)?;
+                    source.read_all()
+                })
+                .with_context(|| format!("--frames {}", path.display()))?,
+        ),
+        None => None,
     };
-    params.validate().map_err(|e| anyhow!("conditions: {e}"))?;
-    if !(args.lgs_spot.is_finite() && args.lgs_spot >= 0.0) {
-        bail!("--lgs-spot must be >= 0, got {}", args.lgs_spot);
-    }
-    let mut measured_photons = None;
-    let mut measured = None;
-    let mut fitted_r0 = None;
-    if let Some(path) = &args.frames {
-        let cube = crate::io::FrameSource::open_sensor(path, None, args.sensor.as_deref())
-            .and_then(|mut source| {
-                source.set_camera(&config.camera)?;
-                source.read_all()
-            })
-            .with_context(|| format!("--frames {}", path.display()))?;
-        let m = measure(&config, &cube, args.gain)?;
-        params.read_noise_e = m.read_noise_e;
-        params.background_error = m.background_error_counts;
-        let mut sorted = m.photons.clone();
-        sorted.sort_by(f64::total_cmp);
-        params.photons = sorted[sorted.len() * 3 / 4].max(1.0);
-        if lgs.is_none() && m.spot_fwhm_px.is_finite() {
-            fitted_r0 = Some(fit_r0(&params, &config, &m)?);
-            params.r0_m = fitted_r0.expect("just set").0;
-        }
-        measured_photons = Some(m.photons.clone());
-        measured = Some(m);
-    }
-    let conditions = Conditions {
-        params,
-        lgs,
-        launch_m,
-        lgs_spot_fwhm_arcsec: args.lgs_spot,
-        pupil: PupilModel {
-            obscuration_m: args.obscuration,
-            illumination_threshold: args.illumination_threshold,
-        },
-        score_axis,
-        measured_photons,
-    };
-    let options = TuneOptions {
-        frames: args.count,
-        seed: args.seed,
-        classes: args.classes,
-        angle_classes: args.angle_classes,
-        methods: candidate_methods(args.level_filter),
-        max_truncation: args.max_truncation,
-    };
-    Ok(Setup {
-        config,
-        conditions,
-        options,
-        measured,
-        fitted_r0,
-    })
-}
-
-/// r0 (m, at 500 nm) whose simulated shift-and-add spot (same photons,
-/// noise and measure) has the measured FWHM: bisection in log r0 between
-/// 2 cm and 1 m, 300 frames per step. Returns (r0, measured FWHM, FWHM of
-/// the fit).
-fn fit_r0(
-    params: &SimulationParams,
-    config: &ProcessingConfig,
-    m: &Measured,
-) -> Result<(f64, f64, f64)> {
-    let size = config.windows.first().map_or(16, |w| w.width as usize);
-    let fwhm_for = |r0: f64| -> Result<f64> {
-        let sim = Simulator::new(SimulationParams {
-            r0_m: r0,
-            pixels_per_subaperture: size as u32,
-            ..params.clone()
-        })
-        .map_err(|e| anyhow!("{e}"))?;
-        let bg = sim.calibration_background() + params.background_error;
-        let images: Vec<Vec<f64>> = sim
-            .frames(7, 0, 300)
-            .iter()
-            .map(|f| f.raw.iter().map(|&v| v as f64 - bg).collect())
-            .collect();
-        Ok(shift_and_add_fwhm(
-            images.iter().map(|v| v.as_slice()),
-            size,
-        ))
-    };
-    let (mut lo, mut hi) = (0.02f64.ln(), 1.0f64.ln());
-    let target = m.spot_fwhm_px;
-    let mut best = (params.r0_m, f64::NAN);
-    for _ in 0..8 {
-        let mid = 0.5 * (lo + hi);
-        let f = fwhm_for(mid.exp())?;
-        best = (mid.exp(), f);
-        // Larger r0, smaller spot.
-        if f > target {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    Ok((best.0, target, best.1))
-}
-
-/// The assumptions, one per line (printed and written as TOML comments).
-fn assumptions(setup: &Setup, args: &TuneArgs) -> Vec<String> {
-    let p = &setup.conditions.params;
-    let c = &setup.conditions;
-    let mut v = vec![
-        format!(
-            "telescope {} m, central obscuration {} m, {} sub-apertures across (d = {:.3} m); illumination threshold {}",
-            p.telescope_diameter_m,
-            c.pupil.obscuration_m,
-            p.subapertures_across,
-            p.subaperture_diameter_m(),
-            c.pupil.illumination_threshold
-        ),
-        format!(
-            "atmosphere: r0 {:.4} m at 500 nm{}, L0 {} m",
-            p.r0_m,
-            match &setup.fitted_r0 {
-                Some((_, measured, fit)) => format!(
-                    " (fitted: shift-and-add spot FWHM {measured:.2} px measured, {fit:.2} px simulated)"
-                ),
-                None => String::new(),
-            },
-            p.outer_scale_m
-        ),
-        format!(
-            "optics: {} arcsec/pixel, WFS wavelength {} nm, Airy diameter {}\" ({})",
-            p.pixel_scale_arcsec,
-            p.wavelength_m * 1e9,
-            p.airy_diameter_arcsec,
-            p.spot_model.name()
-        ),
-        format!(
-            "detector: {} photons per fully lit sub-aperture and frame, read noise {:.3} e-, gain {} e-/count, background {} counts subtracted with an error of {:.3} counts, {} bits",
-            p.photons, p.read_noise_e, p.gain_e_per_count, p.background, p.background_error, p.bit_depth
-        ),
-        match &c.lgs {
-            Some(lgs) => format!(
-                "guide star: {}, launched at ({}, {}) m in the pupil, unelongated spot FWHM {}\"; elongation radial from the launch position",
-                lgs.describe(),
-                c.launch_m[0],
-                c.launch_m[1],
-                c.lgs_spot_fwhm_arcsec
-            ),
-            None => "guide star: natural (point source)".to_string(),
-        },
-        format!(
-            "scoring: R {}; {} frames per class, seed {}; candidates {}",
-            c.score_axis.name(),
-            setup.options.frames,
-            setup.options.seed,
-            setup
-                .options
-                .methods
-                .iter()
-                .map(|m| m.label())
-                .collect::<Vec<_>>()
-                .join(", ")
-        ),
-        "not modelled: flat field, threshold, lenslet aberrations beyond the spot model; each class is one representative sub-aperture".to_string(),
-    ];
-    if let Some(m) = &setup.measured {
-        v.push(format!(
-            "measured from {} ({} frames): read noise {:.3} e- from {} dark pixels ({}); residual background {:.3} counts; signal per sub-aperture {:.1}..{:.1} e- (fully lit: {:.1}); shift-and-add spot FWHM {:.2} px",
-            args.frames.as_ref().map_or(String::new(), |p| p.display().to_string()),
-            m.frames,
-            m.read_noise_e,
-            m.dark_pixels,
-            m.dark_source,
-            m.background_error_counts,
-            m.photons.iter().copied().fold(f64::INFINITY, f64::min),
-            m.photons.iter().copied().fold(f64::NEG_INFINITY, f64::max),
-            p.photons,
-            m.spot_fwhm_px
-        ));
-    }
-    v
-}
-
-/// The `[tuned]` table and the comment block appended to the TOML.
-fn tuned_block(setup: &Setup, result: &TuneResult, lines: &[String]) -> Result<String> {
-    let axis = setup.conditions.score_axis;
-    let p = &setup.conditions.params;
-    let mut t = toml::Table::new();
-    let f = |v: f64| toml::Value::Float(v);
-    t.insert(
-        "tool".into(),
-        format!("brightpix tune {}", env!("CARGO_PKG_VERSION")).into(),
-    );
-    t.insert("rule".into(), result.method.label().into());
-    t.insert("score".into(), axis.name().into());
-    t.insert(
-        "frames_per_class".into(),
-        (setup.options.frames as i64).into(),
-    );
-    t.insert("seed".into(), (setup.options.seed as i64).into());
-    t.insert("r0_m".into(), f(p.r0_m));
-    t.insert("r0_wavelength_m".into(), f(p.r0_wavelength_m));
-    t.insert("outer_scale_m".into(), f(p.outer_scale_m));
-    t.insert("photons_fully_lit".into(), f(p.photons));
-    t.insert("read_noise_e".into(), f(p.read_noise_e));
-    t.insert("gain_e_per_count".into(), f(p.gain_e_per_count));
-    t.insert("background_error_counts".into(), f(p.background_error));
-    t.insert("pixel_scale_arcsec".into(), f(p.pixel_scale_arcsec));
-    t.insert("wavelength_m".into(), f(p.wavelength_m));
-    t.insert("airy_diameter_arcsec".into(), f(p.airy_diameter_arcsec));
-    t.insert("spot_model".into(), p.spot_model.name().into());
-    t.insert("telescope_diameter_m".into(), f(p.telescope_diameter_m));
-    t.insert(
-        "obscuration_m".into(),
-        f(setup.conditions.pupil.obscuration_m),
-    );
-    t.insert(
-        "illumination_threshold".into(),
-        f(setup.conditions.pupil.illumination_threshold),
-    );
-    t.insert(
-        "subapertures_across".into(),
-        (p.subapertures_across as i64).into(),
-    );
-    if let Some(lgs) = &setup.conditions.lgs {
-        t.insert("lgs".into(), lgs.describe().into());
-        t.insert(
-            "launch_m".into(),
-            toml::Value::Array(setup.conditions.launch_m.iter().map(|&v| f(v)).collect()),
-        );
-        t.insert(
-            "lgs_spot_fwhm_arcsec".into(),
-            f(setup.conditions.lgs_spot_fwhm_arcsec),
-        );
-    }
-    t.insert(
-        "measured_from_frames".into(),
-        setup.measured.is_some().into(),
-    );
-    t.insert(
-        "dark_windows".into(),
-        toml::Value::Array(
-            result
-                .plan
-                .dark
-                .iter()
-                .map(|&i| (i as i64).into())
-                .collect(),
-        ),
-    );
-    t.insert("truncated".into(), (!result.truncated.is_empty()).into());
-    let classes: Vec<toml::Value> = result
-        .plan
-        .classes
-        .iter()
-        .map(|c| {
-            let chosen = c.chosen.as_ref().expect("tuned");
-            let mut ct = toml::Table::new();
-            ct.insert(
-                "windows".into(),
-                toml::Value::Array(c.members.iter().map(|&i| (i as i64).into()).collect()),
-            );
-            ct.insert("representative".into(), (c.representative as i64).into());
-            ct.insert("N".into(), (chosen.pixels as i64).into());
-            ct.insert("R".into(), f(chosen.r(axis).value));
-            ct.insert("R_along".into(), f(chosen.r(Axis::Along).value));
-            ct.insert("R_across".into(), f(chosen.r(Axis::Across).value));
-            ct.insert("lit_fraction".into(), f(c.placement.lit_fraction));
-            ct.insert("photons".into(), f(c.photons));
-            ct.insert("distance_m".into(), f(c.placement.distance_m));
-            ct.insert("elongation_angle_deg".into(), f(c.placement.angle_deg));
-            ct.insert("light_in_window".into(), f(c.field_fraction));
-            toml::Value::Table(ct)
-        })
-        .collect();
-    t.insert("class".into(), toml::Value::Array(classes));
-    let mut outer = toml::Table::new();
-    outer.insert("tuned".into(), toml::Value::Table(t));
-    let mut s = String::from("\n# ---- brightpix tune: what was assumed (the [tuned] table is ignored by the loader) ----\n");
-    for l in lines {
-        s.push_str(&format!("# {l}\n"));
-    }
-    s.push('\n');
-    s.push_str(&toml::to_string(&outer).map_err(|e| anyhow!("{e}"))?);
-    Ok(s)
+    let prepared = request.prepare(&config, recorded.as_ref())?;
+    Ok(Setup { config, prepared })
 }
 
 pub fn run(args: TuneArgs) -> Result<()> {
@@ -555,22 +263,30 @@ pub fn run(args: TuneArgs) -> Result<()> {
         bail!("--criterion wfe: the end-to-end simulation models natural guide stars only (drop --lgs)");
     }
     let setup = setup(&args)?;
-    let lines = assumptions(&setup, &args);
+    let recorded_from = args
+        .frames
+        .as_ref()
+        .map_or(String::new(), |p| p.display().to_string());
+    let lines = setup.prepared.assumptions(&recorded_from);
     for l in &lines {
         eprintln!("brightpix: tune: {l}");
     }
     if wfe {
         return wfe_tune::run(&args, &setup, &lines);
     }
-    let planned = plan(&setup.config, &setup.conditions, &setup.options)?;
+    let planned = plan(
+        &setup.config,
+        &setup.prepared.conditions,
+        &setup.prepared.options,
+    )?;
     let total_jobs: usize = planned
         .classes
         .iter()
-        .map(|c| jobs_per_class(c.size, &setup.options.methods))
+        .map(|c| jobs_per_class(c.size, &setup.prepared.options.methods))
         .sum();
-    let frames = setup.options.frames;
-    let per_job =
-        frames as f64 / jobs_per_class(planned.classes[0].size, &setup.options.methods) as f64;
+    let frames = setup.prepared.options.frames;
+    let per_job = frames as f64
+        / jobs_per_class(planned.classes[0].size, &setup.prepared.options.methods) as f64;
     let bar = ProgressBar::new((frames * planned.classes.len() * 2) as u64);
     bar.set_style(
         ProgressStyle::with_template("tune [{elapsed_precise}] {wide_bar} {percent:>3}% eta {eta}")
@@ -581,14 +297,14 @@ pub fn run(args: TuneArgs) -> Result<()> {
         setup.config.windows.len(),
         planned.dark.len(),
         planned.classes.len(),
-        setup.options.methods.len(),
+        setup.prepared.options.methods.len(),
         total_jobs,
         frames
     );
     let result = tune(
         &setup.config,
-        &setup.conditions,
-        &setup.options,
+        &setup.prepared.conditions,
+        &setup.prepared.options,
         args.keep_dark,
         &|frames, jobs| {
             bar.inc(frames as u64 + (jobs as f64 * per_job).round() as u64);
@@ -596,14 +312,9 @@ pub fn run(args: TuneArgs) -> Result<()> {
     )?;
     bar.finish_and_clear();
 
-    let path = result.config.save(&args.out, &args.name)?;
-    let mut text = std::fs::read_to_string(&path)?;
-    text.push_str(&tuned_block(&setup, &result, &lines)?);
-    let tmp = path.with_extension("toml.tmp");
-    std::fs::write(&tmp, text)?;
-    std::fs::rename(&tmp, &path)?;
+    let written = output::write(&args.out, &args.name, &setup.prepared, &result, &lines)?;
 
-    let axis = setup.conditions.score_axis;
+    let axis = setup.prepared.conditions.score_axis;
     let classes = &result.plan.classes;
     let mut report = String::new();
     writeln!(
@@ -612,6 +323,7 @@ pub fn run(args: TuneArgs) -> Result<()> {
         result.method.label(),
         axis.name(),
         setup
+            .prepared
             .options
             .methods
             .iter()
@@ -635,9 +347,6 @@ pub fn run(args: TuneArgs) -> Result<()> {
         "R current",
         "in win"
     )?;
-    let mut csv = String::from(
-        "class,subapertures,window,representative,lit_fraction,photons,distance_m,angle_deg,light_in_window,method,N,R,se,R_along,R_across\n",
-    );
     for (k, c) in classes.iter().enumerate() {
         let chosen = c.chosen.as_ref().expect("tuned");
         let r = chosen.r(axis);
@@ -666,27 +375,6 @@ pub fn run(args: TuneArgs) -> Result<()> {
             current,
             c.field_fraction
         )?;
-        for s in &c.scores {
-            let rb = s.r(axis);
-            writeln!(
-                csv,
-                "{k},{},{},{},{:.4},{:.3},{:.3},{:.2},{:.5},{},{},{:.6},{:.6},{:.6},{:.6}",
-                c.members.len(),
-                c.size,
-                c.representative,
-                c.placement.lit_fraction,
-                c.photons,
-                c.placement.distance_m,
-                c.placement.angle_deg,
-                c.field_fraction,
-                s.method.label(),
-                s.pixels,
-                rb.value,
-                rb.se,
-                s.r(Axis::Along).value,
-                s.r(Axis::Across).value
-            )?;
-        }
     }
     writeln!(
         report,
@@ -697,7 +385,7 @@ pub fn run(args: TuneArgs) -> Result<()> {
         writeln!(
             report,
             "dark sub-apertures (lit below {}): windows {:?}: {}",
-            setup.conditions.pupil.illumination_threshold,
+            setup.prepared.conditions.pupil.illumination_threshold,
             result.plan.dark,
             if args.keep_dark {
                 "kept with the median N"
@@ -706,32 +394,19 @@ pub fn run(args: TuneArgs) -> Result<()> {
             }
         )?;
     }
-    let csv_path = args.out.join(format!("{}-tune.csv", args.name));
-    std::fs::write(&csv_path, csv)?;
-    let plots = plot_classes(&result, axis, &args.out.join(format!("{}-tune", args.name)))?;
     print!("{report}");
     eprintln!(
         "brightpix: wrote {}, {} and {}",
-        path.display(),
-        csv_path.display(),
-        plots
+        written.config.display(),
+        written.scores.display(),
+        written
+            .plots
             .iter()
             .map(|p| p.display().to_string())
             .collect::<Vec<_>>()
             .join(", ")
     );
-    if !result.truncated.is_empty() {
-        let worst = result
-            .truncated
-            .iter()
-            .map(|&k| classes[k].field_fraction)
-            .fold(1.0, f64::min);
-        let msg = format!(
-            "spots are truncated by the sub-aperture: class(es) {:?} keep only {:.1}% of their light in the window (allowed loss {}%); a larger field of view (pixel scale or window) is needed, and the tuned N is not reliable",
-            result.truncated,
-            100.0 * worst,
-            100.0 * setup.options.max_truncation
-        );
+    if let Some(msg) = result.truncation(setup.prepared.options.max_truncation) {
         if args.allow_truncation {
             eprintln!("brightpix: tune: warning: {msg}");
         } else {
@@ -739,58 +414,6 @@ pub fn run(args: TuneArgs) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// R against N of the chosen rule, one curve per class.
-fn plot_classes(result: &TuneResult, axis: Axis, stem: &Path) -> Result<Vec<PathBuf>> {
-    let series = result
-        .plan
-        .classes
-        .iter()
-        .enumerate()
-        .map(|(k, c)| {
-            let mut scores: Vec<_> = c
-                .scores
-                .iter()
-                .filter(|s| s.method == result.method)
-                .collect();
-            scores.sort_by_key(|s| s.pixels);
-            Series {
-                label: format!(
-                    "class {k}: {} subap, lit {:.2}, {:.1} m (N={})",
-                    c.members.len(),
-                    c.placement.lit_fraction,
-                    c.placement.distance_m,
-                    c.chosen.as_ref().map_or(0, |s| s.pixels)
-                ),
-                color: COLORS[k % COLORS.len()],
-                marker: Marker::Circle,
-                dashed: false,
-                points: scores
-                    .iter()
-                    .map(|s| (s.pixels as f64, s.r(axis).value))
-                    .collect(),
-                errors: scores.iter().map(|s| s.r(axis).se).collect(),
-                ring_last: true,
-            }
-        })
-        .collect();
-    plot::write(
-        stem,
-        &Plot {
-            title: format!(
-                "tune: R {} against N, {}",
-                axis.name(),
-                result.method.label()
-            ),
-            x_desc: "N, brightest pixels selected (ringed: all pixels)".into(),
-            y_desc: "R (pixels)".into(),
-            x_log: true,
-            series,
-            y_range: None,
-        },
-        (1000, 560),
-    )
 }
 
 mod wfe_tune;

@@ -65,7 +65,7 @@ fn arguments_are_checked_before_any_work() {
         (vec!["--spot-model", "x"], "effective-wavelength"),
         (
             vec!["--illumination-threshold", "0"],
-            "illumination-threshold",
+            "illumination threshold",
         ),
         (vec!["--frames", "0"], "--frames 0"),
     ] {

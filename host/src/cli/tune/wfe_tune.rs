@@ -50,9 +50,9 @@ fn without(config: &ProcessingConfig, dark: &[usize]) -> ProcessingConfig {
 }
 
 pub(super) fn run(args: &TuneArgs, setup: &Setup, lines: &[String]) -> Result<()> {
-    let p = &setup.conditions.params;
-    let threshold = setup.conditions.pupil.illumination_threshold;
-    let dark: Vec<usize> = place(&setup.config, &setup.conditions)
+    let p = &setup.prepared.conditions.params;
+    let threshold = setup.prepared.conditions.pupil.illumination_threshold;
+    let dark: Vec<usize> = place(&setup.config, &setup.prepared.conditions)
         .iter()
         .enumerate()
         .filter(|(_, pl)| pl.lit_fraction < threshold)
@@ -63,7 +63,7 @@ pub(super) fn run(args: &TuneArgs, setup: &Setup, lines: &[String]) -> Result<()
         config: config.clone(),
         across: Some(p.subapertures_across as usize),
         wfs: p.clone(),
-        obscuration_m: setup.conditions.pupil.obscuration_m,
+        obscuration_m: setup.prepared.conditions.pupil.obscuration_m,
         atmosphere: Atmosphere {
             r0_m: p.r0_m,
             r0_wavelength_m: p.r0_wavelength_m,
@@ -81,7 +81,7 @@ pub(super) fn run(args: &TuneArgs, setup: &Setup, lines: &[String]) -> Result<()
         episodes: args.endtoend.episodes,
         frames_per_episode: args.endtoend.episode_frames,
         calibration_episodes: args.endtoend.calibration_episodes,
-        methods: setup.options.methods.clone(),
+        methods: setup.prepared.options.methods.clone(),
         pixels,
     };
     let stem = format!("{}-endtoend", args.name);

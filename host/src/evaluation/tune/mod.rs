@@ -24,6 +24,10 @@
 
 use anyhow::{anyhow, bail, Result};
 
+pub mod output;
+mod request;
+pub use request::{parse_score, FittedR0, Prepared, TuneRequest, MIN_FRAMES, SET_BY_TUNE};
+
 use super::{all_pixels, default_pixel_grid, evaluate, jobs, Axis, Batch, Method, Score};
 use crate::config_file::{PixelCounts, ProcessingConfig};
 use crate::simulator::{SimulationParams, Simulator, Source, SubaperturePupil};
@@ -626,6 +630,28 @@ pub struct TuneResult {
     /// Classes whose spots lose more than the allowed light outside the
     /// window.
     pub truncated: Vec<usize>,
+}
+
+impl TuneResult {
+    /// Why the tuned N is not reliable, when some class's spots keep less
+    /// than `1 - max_truncation` of their light inside the window; `None`
+    /// when every class's do.
+    pub fn truncation(&self, max_truncation: f64) -> Option<String> {
+        if self.truncated.is_empty() {
+            return None;
+        }
+        let worst = self
+            .truncated
+            .iter()
+            .map(|&k| self.plan.classes[k].field_fraction)
+            .fold(1.0, f64::min);
+        Some(format!(
+            "spots are truncated by the sub-aperture: class(es) {:?} keep only {:.1}% of their light in the window (allowed loss {}%); a larger field of view (pixel scale or window) is needed, and the tuned N is not reliable",
+            self.truncated,
+            100.0 * worst,
+            100.0 * max_truncation
+        ))
+    }
 }
 
 /// Simulates the conditions for every class, scores every candidate and
