@@ -11,17 +11,16 @@
 //! the capture warns that frames may be misaligned, and with `--start
 //! sync` it refuses to merge boards that began without the edge.
 
-use std::path::PathBuf;
-
 use anyhow::{bail, Context, Result};
 use brightpix_protocol::wire::PixelSourceKind;
 use clap::{Args, ValueEnum};
 
+use super::merged::MergedArgs;
 use super::stream::{report, Outcome};
 use super::{open_clients, CheckArgs};
-use crate::io::{check_result_outputs, write_results, Layout, Provenance, Raw, Results};
+use crate::io::{Raw, Results};
 use crate::link::Client;
-use crate::rig::{self, MergedFrame, Rig, RigRun, RigStart, RigStream};
+use crate::rig::{MergedFrame, Rig, RigRun, RigStart, RigStream};
 use crate::sim_device::CameraFrames;
 
 #[derive(Args)]
@@ -45,16 +44,8 @@ pub struct CaptureArgs {
     /// Seed of the boards' simulated camera, for --verify.
     #[arg(long, default_value_t = 1, requires = "verify")]
     seed: u64,
-    /// Write the merged slopes, flux, validity and provenance (.npy set, FITS or CSV; NaN where a
-    /// board gave nothing).
-    #[arg(long)]
-    out: Option<PathBuf>,
-    /// Slopes layout of --out.
-    #[arg(long, value_enum, default_value_t = Layout::Pairs, requires = "out")]
-    layout: Layout,
-    /// The boards already run their parts: check their digests instead of uploading.
-    #[arg(long)]
-    no_configure: bool,
+    #[command(flatten)]
+    merged: MergedArgs,
     /// Mismatches to print with --verify.
     #[arg(long, default_value_t = 10)]
     show: usize,
@@ -89,17 +80,11 @@ pub(super) fn rig_start(rig: &Rig, start: StartArg) -> Result<RigStart> {
 pub fn run(args: CaptureArgs) -> Result<()> {
     let rig = Rig::load(&args.rig.rig)?;
     let start = rig_start(&rig, args.start)?;
-    if let Some(out) = &args.out {
-        check_result_outputs(&[&args.rig.rig], &[out])?;
-    }
+    args.merged.check_out(&[&args.rig.rig])?;
     let count = u32::try_from(args.count).context("--count: at most 4294967295 frames")?;
     let mut clients = open_clients(&rig, &args.rig.ports)?;
     refuse_boards_without_camera(&rig, &clients)?;
-    if args.no_configure {
-        rig::check_configurations(&rig, &mut clients)?;
-    } else {
-        rig::configure(&rig, &mut clients)?;
-    }
+    args.merged.configure(&rig, &mut clients)?;
     let outcome = capture_and_report(
         &rig,
         &mut clients,
@@ -109,21 +94,12 @@ pub fn run(args: CaptureArgs) -> Result<()> {
         args.show,
     )?;
     check_alignment(&rig, &outcome.run)?;
-    if let Some(out) = &args.out {
-        let mut provenance = Provenance::of(
-            "brightpix rig capture (merged from the boards)",
-            &rig.whole.view(),
-            rig.config_file.as_deref(),
-        );
-        provenance.frames_source = Some("the boards' camera".into());
-        provenance.rig = Some(rig.describe());
-        write_results(out, &outcome.results, &provenance, args.layout)?;
-        eprintln!(
-            "brightpix: {} holds {} merged frames (NaN where a board gave nothing)",
-            out.display(),
-            outcome.results.frames()
-        );
-    }
+    args.merged.write(
+        &rig,
+        &outcome.results,
+        "brightpix rig capture (merged from the boards)",
+        "the boards' camera".into(),
+    )?;
     outcome.verdict(args.verify, args.count)
 }
 

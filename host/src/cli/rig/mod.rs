@@ -6,11 +6,13 @@
 //! | `plan`    | `rig plan`: split a whole-camera configuration, write `rig.toml`    |
 //! | `stream`  | `rig stream`: recorded frames to the boards, merged and reported    |
 //! | `capture` | `rig capture`: every board's own camera, merged by frame number     |
+//! | `merged`  | what `stream` and `capture` share: configure or check, `--out`      |
 //! | `view`    | `view --rig`: the boards' merged results in the live view           |
 //! | `demo`    | `demo --boards K`: `rig stream` on simulated devices                |
 
 mod capture;
 mod demo;
+mod merged;
 mod plan;
 mod stream;
 mod view;

@@ -6,12 +6,11 @@ use std::path::PathBuf;
 use anyhow::{bail, Result};
 use clap::Args;
 
-use crate::io::{
-    check_result_outputs, write_results, FrameSource, Layout, Provenance, Raw, Results,
-};
+use crate::io::{FrameSource, Raw, Results};
 use crate::link::Client;
 use crate::rig::{self, Rig, RigRun, RigStream};
 
+use super::merged::MergedArgs;
 use super::{open_clients, CheckArgs};
 
 #[derive(Args)]
@@ -30,35 +29,21 @@ pub(super) struct StreamArgs {
     /// Check every merged frame against the whole-camera reference.
     #[arg(long)]
     verify: bool,
-    /// Write the merged slopes, flux, validity and provenance (.npy set, FITS or CSV; NaN where a
-    /// board gave nothing).
-    #[arg(long)]
-    out: Option<PathBuf>,
-    /// Slopes layout of --out.
-    #[arg(long, value_enum, default_value_t = Layout::Pairs, requires = "out")]
-    layout: Layout,
-    /// The boards already run their parts: check their digests instead of uploading.
-    #[arg(long)]
-    no_configure: bool,
+    #[command(flatten)]
+    merged: MergedArgs,
     #[command(flatten)]
     live: crate::cli::view::ViewFlag,
 }
 
 pub(super) fn run(args: StreamArgs) -> Result<()> {
     let rig = Rig::load(&args.rig.rig)?;
-    if let Some(out) = &args.out {
-        check_result_outputs(&[&args.rig.rig, &args.frames], &[out])?;
-    }
+    args.merged.check_out(&[&args.rig.rig, &args.frames])?;
     let mut source = FrameSource::open_hdu(&args.frames, args.hdu.as_deref())?;
     source.set_camera(&rig.whole.camera)?;
     let total = args.count.unwrap_or(usize::MAX).min(source.len());
     let live = args.live.start()?;
     let mut clients = open_clients(&rig, &args.rig.ports)?;
-    if args.no_configure {
-        rig::check_configurations(&rig, &mut clients)?;
-    } else {
-        rig::configure(&rig, &mut clients)?;
-    }
+    args.merged.configure(&rig, &mut clients)?;
     let source_name = args.frames.display().to_string();
     // Read and streamed in batches: a cube of any length goes through.
     let read = |first: usize, count: usize| -> Result<Vec<Vec<u16>>> {
@@ -81,21 +66,12 @@ pub(super) fn run(args: StreamArgs) -> Result<()> {
     }
     let hub = live.as_ref().map(|l| l.hub.as_ref());
     let outcome = run_and_report(&rig, &mut clients, total, read, args.verify, 10, hub)?;
-    if let Some(out) = &args.out {
-        let mut provenance = Provenance::of(
-            "brightpix rig stream (merged from the boards)",
-            &rig.whole.view(),
-            rig.config_file.as_deref(),
-        );
-        provenance.frames_source = Some(source_name);
-        provenance.rig = Some(rig.describe());
-        write_results(out, &outcome.results, &provenance, args.layout)?;
-        eprintln!(
-            "brightpix: {} holds {} merged frames (NaN where a board gave nothing)",
-            out.display(),
-            outcome.results.frames()
-        );
-    }
+    args.merged.write(
+        &rig,
+        &outcome.results,
+        "brightpix rig stream (merged from the boards)",
+        source_name,
+    )?;
     outcome.verdict(args.verify, total)
 }
 
