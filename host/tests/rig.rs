@@ -232,19 +232,27 @@ fn stream_equals_process(
         .collect::<Vec<_>>()
         .join(",");
     let out = dir.join("merged.npy");
-    let (ok, text) = run(&[
-        "rig",
-        "stream",
-        "--rig",
-        rig_file.to_str().unwrap(),
-        "--ports",
-        &ports,
-        "--frames",
-        frames_file.to_str().unwrap(),
-        "--verify",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let stream = |extra: &[&str]| {
+        let mut argv = vec![
+            "rig",
+            "stream",
+            "--rig",
+            rig_file.to_str().unwrap(),
+            "--ports",
+            &ports,
+            "--frames",
+            frames_file.to_str().unwrap(),
+            "--verify",
+        ];
+        argv.extend_from_slice(extra);
+        run(&argv)
+    };
+    // Boards that run no part yet: `--no-configure` refuses before any
+    // frame, and writes nothing.
+    let (ok, text) = stream(&["--no-configure", "--out", out.to_str().unwrap()]);
+    assert!(!ok && text.contains("not its part of the rig"), "{text}");
+    assert!(!out.exists());
+    let (ok, text) = stream(&["--out", out.to_str().unwrap()]);
     assert!(ok, "{text}");
     assert!(
         text.contains(&format!("verified: {frames} merged frames"))
@@ -269,6 +277,9 @@ fn stream_equals_process(
             "{suffix}"
         );
     }
+    // Now they run their parts: `--no-configure` checks and streams.
+    let (ok, text) = stream(&["--no-configure", "--count", "3"]);
+    assert!(ok && text.contains("verified: 3 merged frames"), "{text}");
 }
 
 #[test]
