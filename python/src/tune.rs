@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use brightpix::evaluation::tune::{
     output, parse_score, tune, Lgs, Prepared, TuneRequest, TuneResult,
 };
+use brightpix::config_file::ConfigFileError;
 use brightpix::evaluation::Axis;
 use brightpix::io::{FrameCube, FrameShape};
 use brightpix::simulator::SimulationParams;
@@ -16,9 +17,22 @@ use pyo3::types::{PyDict, PyList};
 
 use crate::arrays::{frames, to_numpy};
 use crate::config::PyConfig;
+use crate::errors::config_error;
 
 fn value_error(e: anyhow::Error) -> PyErr {
     PyValueError::new_err(format!("{e:#}"))
+}
+
+/// A file that cannot be written is an `OSError` (as `Config.save`'s);
+/// a bad name a `ValueError`.
+fn save_error(e: anyhow::Error) -> PyErr {
+    match e.downcast::<ConfigFileError>() {
+        Ok(e) => config_error(e, false),
+        Err(e) => match e.downcast::<std::io::Error>() {
+            Ok(io) => PyErr::from(io),
+            Err(e) => value_error(e),
+        },
+    }
 }
 
 /// What :func:`tune` found: the tuned :class:`Config`, the chosen rule,
@@ -194,10 +208,7 @@ impl PyTuneResult {
                     &self.assumptions,
                 )
             })
-            .map_err(|e| match e.downcast::<std::io::Error>() {
-                Ok(io) => PyErr::from(io),
-                Err(e) => value_error(e),
-            })?;
+            .map_err(save_error)?;
         let mut paths = vec![written.config, written.scores];
         paths.extend(written.plots);
         Ok(paths)

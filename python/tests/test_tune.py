@@ -52,6 +52,19 @@ def test_writes_what_the_command_line_writes(
         assert f"brightpix: tune: {line}" in done.stderr
 
 
+def test_save_refuses_a_bad_name_and_an_unwritable_directory(
+    lgs_result: brightpix.TuneResult, tmp_path: Path
+) -> None:
+    with pytest.raises(ValueError, match="plain file name"):
+        lgs_result.save(tmp_path, name="../elsewhere")
+    taken = tmp_path / "taken"
+    taken.write_text("keep")
+    with pytest.raises(OSError, match="cannot create"):
+        lgs_result.save(taken / "tuned")
+    assert taken.read_text() == "keep"
+    assert list(tmp_path.iterdir()) == [taken]
+
+
 def test_result_describes_the_classes(
     lgs_result: brightpix.TuneResult, canary: brightpix.Config
 ) -> None:
