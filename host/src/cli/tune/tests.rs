@@ -255,7 +255,8 @@ fn tune_from_recorded_frames_measures_the_conditions() {
     assert!(t["background_error_counts"].as_float().unwrap().abs() < 0.3);
     assert_eq!(t["measured_from_frames"].as_bool(), Some(true));
     let r0 = t["r0_m"].as_float().unwrap();
-    assert!((0.08..0.2).contains(&r0), "{r0}");
+    // 0.125 simulated (0.0995 fitted while the spot size counted whole pixels).
+    assert!((0.11..0.14).contains(&r0), "{r0}");
     let tuned = ProcessingConfig::load(&path).unwrap();
     assert_eq!(tuned.windows.len(), 37);
     assert_eq!(t["dark_windows"].as_array().unwrap().len(), 12);
