@@ -4,10 +4,10 @@
 
 use std::path::PathBuf;
 
+use brightpix::config_file::ConfigFileError;
 use brightpix::evaluation::tune::{
     output, parse_score, tune, Lgs, Prepared, TuneRequest, TuneResult,
 };
-use brightpix::config_file::ConfigFileError;
 use brightpix::evaluation::Axis;
 use brightpix::io::{FrameCube, FrameShape};
 use brightpix::simulator::SimulationParams;
