@@ -4,7 +4,7 @@
 use crate::config_file::ProcessingConfig;
 use crate::endtoend::least_squares::LeastSquares;
 use crate::endtoend::{
-    parse_layers, parse_stars, report, EndToEnd, EndToEndResult, RunOptions, Scenario,
+    parse_layer_list, parse_stars, report, Conditions, EndToEnd, RunOptions, Scenario,
 };
 use crate::evaluation::Method;
 use crate::simulator::atmosphere::Atmosphere;
@@ -14,9 +14,10 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 
-/// The end-to-end conditions that `tune --criterion wfe` shares.
+/// The end-to-end conditions that `tune --criterion wfe` shares
+/// ([`Conditions`], whose defaults these are).
 #[derive(Args, Clone, Debug)]
-pub struct EndToEndConditions {
+pub struct ConditionArgs {
     /// Guide stars (one wavefront sensor each): RADIUS,ANGLE;... (arcsec, degrees from +x
     /// towards +y). Default: the paper's (40.2,26.6;40.2,153.4;19.0,288.4).
     #[arg(long, value_name = "R,A;...", allow_hyphen_values = true)]
@@ -65,50 +66,41 @@ pub struct EndToEndConditions {
     pub calibration_episodes: usize,
 }
 
-impl EndToEndConditions {
-    /// Fills `scenario` with these conditions (its atmosphere's r0 and
-    /// outer scale are kept).
-    pub fn apply(&self, scenario: &mut Scenario) -> Result<()> {
-        if let Some(a) = &self.asterism {
-            scenario.guide_stars = parse_stars(a).context("--asterism")?;
-            if scenario.guide_stars.is_empty() {
-                bail!("--asterism: at least one guide star");
-            }
-        }
+impl ConditionArgs {
+    /// The conditions these options give, parsed (the library checks
+    /// their values).
+    pub fn conditions(&self) -> Result<Conditions> {
+        let guide_stars = self
+            .asterism
+            .as_deref()
+            .map(parse_stars)
+            .transpose()
+            .context("--asterism")?;
         let science = parse_stars(&self.science).context("--science")?;
         if science.len() != 1 {
             bail!("--science: one RADIUS,ANGLE");
         }
-        scenario.science = science[0];
-        if let Some(l) = &self.layers {
-            scenario.atmosphere.layers = parse_layers(l).context("--layers")?;
-        }
-        if !(self.wind_scale.is_finite() && self.wind_scale >= 0.0) {
-            bail!("--wind-scale must be >= 0, got {}", self.wind_scale);
-        }
-        scenario.atmosphere = scenario
-            .atmosphere
-            .clone()
-            .with_wind_scaled(self.wind_scale);
-        scenario.frame_rate_hz = self.frame_rate;
-        scenario.delay_frames = self.delay;
-        scenario.science_wavelength_m = self.science_wavelength;
-        scenario.dm_actuators_across = self.dm_actuators;
-        scenario.dm_coupling = self.dm_coupling;
-        scenario.fixed_noise_px = self.fixed_noise;
-        if self.episodes < 2 {
-            bail!(
-                "--episodes {}: at least 2 for a standard error",
-                self.episodes
-            );
-        }
-        if self.episode_frames == 0 {
-            bail!("--episode-frames must be at least 1");
-        }
-        if self.calibration_episodes == 0 {
-            bail!("--calibration-episodes must be at least 1");
-        }
-        Ok(())
+        let layers = self
+            .layers
+            .as_deref()
+            .map(parse_layer_list)
+            .transpose()
+            .context("--layers")?;
+        Ok(Conditions {
+            guide_stars,
+            science: science[0],
+            layers,
+            wind_scale: self.wind_scale,
+            frame_rate_hz: self.frame_rate,
+            delay_frames: self.delay,
+            science_wavelength_m: self.science_wavelength,
+            dm_actuators_across: self.dm_actuators,
+            dm_coupling: self.dm_coupling,
+            fixed_noise_px: self.fixed_noise,
+            episodes: self.episodes,
+            episode_frames: self.episode_frames,
+            calibration_episodes: self.calibration_episodes,
+        })
     }
 }
 
@@ -137,7 +129,7 @@ pub struct EndToEndArgs {
     #[arg(long)]
     config: Option<PathBuf>,
     #[command(flatten)]
-    conditions: EndToEndConditions,
+    conditions: ConditionArgs,
     /// Fried parameter r0 (m) at 500 nm.
     #[arg(long, default_value_t = 0.125)]
     r0: f64,
@@ -339,7 +331,7 @@ fn scenario(args: &EndToEndArgs) -> Result<Scenario> {
         outer_scale_m: args.outer_scale,
         ..Atmosphere::canary()
     };
-    args.conditions.apply(&mut s)?;
+    args.conditions.conditions()?.apply(&mut s)?;
     s.least_squares = args
         .least_squares
         .as_deref()
@@ -358,17 +350,10 @@ fn scenario(args: &EndToEndArgs) -> Result<Scenario> {
     Ok(s)
 }
 
-/// Runs an end-to-end scenario with a progress bar, writes its CSV, plots
-/// and summary into `out` as `name.*`; returns the result and the summary.
-pub fn run_and_write(
-    e2e: &EndToEnd,
-    options: &RunOptions,
-    out: &Path,
-    name: &str,
-    title: &str,
-) -> Result<(EndToEndResult, String)> {
-    let lines = e2e.scenario.describe(&e2e.lenslets, &e2e.dm);
-    for l in &lines {
+/// Prints what an end-to-end run assumes and how big it is; returns its
+/// progress bar (in frames).
+pub fn start(e2e: &EndToEnd, options: &RunOptions) -> ProgressBar {
+    for l in e2e.scenario.describe(&e2e.lenslets, &e2e.dm) {
         eprintln!("brightpix: endtoend: {l}");
     }
     let combos = e2e.combos(&options.methods, &options.pixels);
@@ -394,42 +379,22 @@ pub fn run_and_write(
         )
         .expect("valid template"),
     );
-    let result = e2e.run(options, &|n| bar.inc(n as u64))?;
-    bar.finish_and_clear();
-    let t = &result.timing;
-    let run_line = format!(
-        "seed {}, {} episodes of {} frames + {} calibration; {:.0} s: screens {:.0} s, sensor frames {:.0} s, science path {:.0} s, scoring {:.0} s (thread time: engine {:.0} s, reconstruction and residuals {:.0} s) on {} threads",
-        options.seed,
-        options.episodes,
-        options.frames_per_episode,
-        options.calibration_episodes,
-        t.total,
-        t.screens,
-        t.wfs_frames,
-        t.science,
-        t.scoring,
-        t.engine_cpu,
-        t.reconstruction_cpu,
-        rayon::current_num_threads()
-    );
-    let summary = report::summary(&result, &lines, &run_line);
-    let csv_path = out.join(format!("{name}.csv"));
-    std::fs::write(&csv_path, report::csv(&result))
-        .with_context(|| csv_path.display().to_string())?;
-    let md_path = out.join(format!("{name}.md"));
-    std::fs::write(&md_path, &summary).with_context(|| md_path.display().to_string())?;
-    let plots = report::plots(&result, &out.join(name), title)?;
+    bar
+}
+
+/// Prints the files an end-to-end run wrote.
+pub fn print_written(written: &report::Written) {
     eprintln!(
         "brightpix: endtoend: wrote {}, {}, {}",
-        csv_path.display(),
-        md_path.display(),
-        plots
+        written.csv.display(),
+        written.summary_path.display(),
+        written
+            .plots
             .iter()
             .map(|p| p.display().to_string())
             .collect::<Vec<_>>()
             .join(", ")
     );
-    Ok((result, summary))
 }
 
 pub fn run(args: EndToEndArgs) -> Result<()> {
@@ -463,8 +428,21 @@ pub fn run(args: EndToEndArgs) -> Result<()> {
         methods,
         pixels,
     };
-    let (_, summary) = run_and_write(&e2e, &options, &args.out, &args.name, "end to end")?;
-    print!("{summary}");
+    let bar = start(&e2e, &options);
+    let result = e2e.run(&options, &|n| bar.inc(n as u64))?;
+    bar.finish_and_clear();
+    let run_line = report::run_line(&options, &result.timing, rayon::current_num_threads());
+    let lines = e2e.scenario.describe(&e2e.lenslets, &e2e.dm);
+    let written = report::write(
+        &args.out,
+        &args.name,
+        "end to end",
+        &result,
+        &lines,
+        &run_line,
+    )?;
+    print_written(&written);
+    print!("{}", written.summary);
     Ok(())
 }
 

@@ -2,8 +2,8 @@
 
 use crate::config_file::ProcessingConfig;
 use crate::evaluation::tune::{
-    jobs_per_class, output, parse_score, plan, pupil_mse, tune, Lgs, Prepared, PupilModel,
-    TuneRequest,
+    jobs_per_class, output, parse_score, plan, pupil_mse, tune, Criterion, Lgs, Prepared,
+    PupilModel, TuneRequest, WfeRequest,
 };
 use crate::evaluation::Axis;
 use crate::simulator::{SimulationParams, SpotModel};
@@ -137,7 +137,7 @@ pub struct TuneArgs {
     #[arg(long, default_value = "r")]
     criterion: String,
     #[command(flatten)]
-    endtoend: super::endtoend::EndToEndConditions,
+    endtoend: super::endtoend::ConditionArgs,
 }
 
 fn parse_launch(text: &str) -> Result<[f64; 2]> {
@@ -226,8 +226,7 @@ fn request(args: &TuneArgs) -> Result<TuneRequest> {
     Ok(request)
 }
 
-fn setup(args: &TuneArgs) -> Result<Setup> {
-    let request = request(args)?;
+fn setup(args: &TuneArgs, request: &TuneRequest) -> Result<Setup> {
     if let Some(path) = &args.frames {
         if !path.is_file() {
             bail!(
@@ -254,15 +253,21 @@ fn setup(args: &TuneArgs) -> Result<Setup> {
 }
 
 pub fn run(args: TuneArgs) -> Result<()> {
-    let wfe = match args.criterion.as_str() {
-        "r" => false,
-        "wfe" => true,
-        other => bail!("--criterion {other:?}: one of r, wfe"),
+    let criterion = Criterion::parse(&args.criterion)?;
+    let request = request(&args)?;
+    // The end-to-end conditions, checked with the rest before any work.
+    let endtoend = match criterion {
+        Criterion::R => None,
+        Criterion::Wfe => {
+            let wfe = WfeRequest {
+                tune: request.clone(),
+                endtoend: args.endtoend.conditions()?,
+            };
+            wfe.check()?;
+            Some(wfe.endtoend)
+        }
     };
-    if wfe && args.lgs.is_some() {
-        bail!("--criterion wfe: the end-to-end simulation models natural guide stars only (drop --lgs)");
-    }
-    let setup = setup(&args)?;
+    let setup = setup(&args, &request)?;
     let recorded_from = args
         .frames
         .as_ref()
@@ -271,8 +276,8 @@ pub fn run(args: TuneArgs) -> Result<()> {
     for l in &lines {
         eprintln!("brightpix: tune: {l}");
     }
-    if wfe {
-        return wfe_tune::run(&args, &setup, &lines);
+    if let Some(conditions) = &endtoend {
+        return wfe_tune::run(&args, &setup, &lines, conditions);
     }
     let planned = plan(
         &setup.config,

@@ -69,6 +69,7 @@
 //! [`HostEngine`]: crate::engine_runner::HostEngine
 //! [`CameraSimulator::frame_from_opds`]: crate::simulator::camera::CameraSimulator::frame_from_opds
 
+pub mod conditions;
 pub mod covariance;
 pub mod geometry;
 pub mod least_squares;
@@ -78,10 +79,13 @@ mod results;
 mod run;
 mod scenario;
 
+pub use conditions::{normalise_layers, Conditions};
 pub use results::{
     estimate, rms_nm, Combo, ComboResult, EndToEndResult, Reconstruction, RunOptions, Terms, Timing,
 };
-pub use scenario::{canary_config, parse_layers, parse_stars, GuideStar, Scenario};
+pub use scenario::{
+    canary_config, parse_layer_list, parse_layers, parse_stars, GuideStar, Scenario,
+};
 
 #[cfg(test)]
 mod tests;

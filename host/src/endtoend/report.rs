@@ -1,11 +1,13 @@
-//! The end-to-end run's outputs: CSV, plots (SVG and PNG) and a summary.
+//! The end-to-end run's outputs: CSV, plots (SVG and PNG) and a summary;
+//! [`write`] writes them all, as `brightpix endtoend`, `brightpix tune
+//! --criterion wfe` and the Python `WfeTuneResult.save` do.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 
-use super::{estimate, rms_nm, ComboResult, EndToEndResult, Reconstruction};
+use super::{estimate, rms_nm, ComboResult, EndToEndResult, Reconstruction, RunOptions, Timing};
 use crate::evaluation::plot::{self, Marker, Plot, Series, COLORS};
 use crate::evaluation::Method;
 
@@ -338,4 +340,73 @@ pub fn summary(result: &EndToEndResult, assumptions: &[String], run_line: &str) 
         let _ = writeln!(s);
     }
     s
+}
+
+/// The summary's run line: the seed, the episodes and where the time went
+/// (wall-clock seconds: the one line that differs between two runs of the
+/// same seed).
+pub fn run_line(options: &RunOptions, timing: &Timing, threads: usize) -> String {
+    let t = timing;
+    format!(
+        "seed {}, {} episodes of {} frames + {} calibration; {:.0} s: screens {:.0} s, sensor frames {:.0} s, science path {:.0} s, scoring {:.0} s (thread time: engine {:.0} s, reconstruction and residuals {:.0} s) on {} threads",
+        options.seed,
+        options.episodes,
+        options.frames_per_episode,
+        options.calibration_episodes,
+        t.total,
+        t.screens,
+        t.wfs_frames,
+        t.science,
+        t.scoring,
+        t.engine_cpu,
+        t.reconstruction_cpu,
+        threads
+    )
+}
+
+/// The files [`write`] wrote, and the summary.
+#[derive(Clone, Debug)]
+pub struct Written {
+    /// `DIRECTORY/NAME.csv`: every rule, N and reconstructor.
+    pub csv: PathBuf,
+    /// `DIRECTORY/NAME.md`: the summary.
+    pub summary_path: PathBuf,
+    /// `NAME.svg/png`, `NAME-strehl.svg/png`, `NAME-budget.svg/png`.
+    pub plots: Vec<PathBuf>,
+    /// The summary's text (what `NAME.md` holds).
+    pub summary: String,
+}
+
+impl Written {
+    /// Every path, in the order written.
+    pub fn paths(&self) -> Vec<PathBuf> {
+        let mut v = vec![self.csv.clone(), self.summary_path.clone()];
+        v.extend(self.plots.iter().cloned());
+        v
+    }
+}
+
+/// Writes the CSV, the summary (with `assumptions`, one line each, and
+/// `run_line`) and the plots (titled `title`) into `directory` (which must
+/// exist) as `NAME.*`.
+pub fn write(
+    directory: &Path,
+    name: &str,
+    title: &str,
+    result: &EndToEndResult,
+    assumptions: &[String],
+    run_line: &str,
+) -> Result<Written> {
+    let summary = summary(result, assumptions, run_line);
+    let csv_path = directory.join(format!("{name}.csv"));
+    std::fs::write(&csv_path, csv(result)).with_context(|| csv_path.display().to_string())?;
+    let summary_path = directory.join(format!("{name}.md"));
+    std::fs::write(&summary_path, &summary).with_context(|| summary_path.display().to_string())?;
+    let plots = plots(result, &directory.join(name), title)?;
+    Ok(Written {
+        csv: csv_path,
+        summary_path,
+        plots,
+        summary,
+    })
 }

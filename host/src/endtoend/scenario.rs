@@ -3,6 +3,7 @@
 
 use anyhow::{bail, Context, Result};
 
+use super::conditions::normalise_layers;
 use super::geometry::{DeformableMirror, Lenslets};
 use super::least_squares::LeastSquares;
 use crate::config_file::ProcessingConfig;
@@ -287,8 +288,13 @@ pub fn parse_stars(text: &str) -> Result<Vec<GuideStar>> {
 /// Parses `ALT:FRACTION:SPEED:DIRECTION,...` (m, share, m/s, degrees) into
 /// layers; the fractions are normalised to sum to 1.
 pub fn parse_layers(text: &str) -> Result<Vec<Layer>> {
-    let mut layers: Vec<Layer> = text
-        .split(',')
+    normalise_layers(parse_layer_list(text)?)
+}
+
+/// Parses `ALT:FRACTION:SPEED:DIRECTION,...` into layers as written (the
+/// fractions not normalised: [`normalise_layers`] does it, once).
+pub fn parse_layer_list(text: &str) -> Result<Vec<Layer>> {
+    text.split(',')
         .filter(|s| !s.trim().is_empty())
         .map(|s| {
             let parts: Vec<&str> = s.split(':').map(str::trim).collect();
@@ -306,20 +312,5 @@ pub fn parse_layers(text: &str) -> Result<Vec<Layer>> {
                 wind_direction_deg: v[3],
             })
         })
-        .collect::<Result<_>>()?;
-    if layers.is_empty() {
-        bail!("no layer given");
-    }
-    let total: f64 = layers.iter().map(|l| l.fraction).sum();
-    if !(total.is_finite() && total > 0.0)
-        || layers
-            .iter()
-            .any(|l| l.fraction.is_nan() || l.fraction <= 0.0)
-    {
-        bail!("every layer's fraction must be positive");
-    }
-    for l in &mut layers {
-        l.fraction /= total;
-    }
-    Ok(layers)
+        .collect()
 }

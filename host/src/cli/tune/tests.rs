@@ -356,3 +356,85 @@ fn criterion_wfe_writes_the_n_of_least_residual_wavefront_error() {
     assert!(e.to_string().contains("natural guide stars"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn end_to_end_options_are_the_librarys_conditions() {
+    let conditions = |extra: &[&str]| {
+        let mut argv = vec!["brightpix", "tune", "--config", EXAMPLE, "--out", "unused"];
+        argv.extend(extra);
+        match Cli::try_parse_from(argv).expect("valid arguments").command {
+            Command::Tune(a) => a.endtoend.conditions().unwrap(),
+            _ => unreachable!(),
+        }
+    };
+    // The command line's defaults are the library's (and so the Python keywords').
+    assert_eq!(conditions(&[]), crate::endtoend::Conditions::default());
+    let c = conditions(&[
+        "--asterism",
+        "30,0;30,120",
+        "--science",
+        "10,45",
+        "--layers",
+        "0:3:5:10,1000:1:10:90",
+        "--wind-scale",
+        "2",
+        "--frame-rate",
+        "500",
+        "--delay",
+        "1",
+        "--science-wavelength",
+        "2.2e-6",
+        "--dm-actuators",
+        "9",
+        "--dm-coupling",
+        "0.3",
+        "--fixed-noise",
+        "0.1",
+        "--episodes",
+        "3",
+        "--episode-frames",
+        "7",
+        "--calibration-episodes",
+        "2",
+    ]);
+    let stars: Vec<[f64; 2]> = c
+        .guide_stars
+        .as_ref()
+        .unwrap()
+        .iter()
+        .map(|g| [g.radius_arcsec, g.angle_deg])
+        .collect();
+    assert_eq!(stars, [[30.0, 0.0], [30.0, 120.0]]);
+    assert_eq!([c.science.radius_arcsec, c.science.angle_deg], [10.0, 45.0]);
+    // The layers as written: the library normalises them, once.
+    let layers = c.layers.as_ref().unwrap();
+    assert_eq!(
+        layers
+            .iter()
+            .map(|l| [
+                l.altitude_m,
+                l.fraction,
+                l.wind_speed_m_s,
+                l.wind_direction_deg
+            ])
+            .collect::<Vec<_>>(),
+        [[0.0, 3.0, 5.0, 10.0], [1000.0, 1.0, 10.0, 90.0]]
+    );
+    assert_eq!(
+        (
+            c.wind_scale,
+            c.frame_rate_hz,
+            c.delay_frames,
+            c.science_wavelength_m
+        ),
+        (2.0, 500.0, 1.0, 2.2e-6)
+    );
+    assert_eq!(
+        (c.dm_actuators_across, c.dm_coupling, c.fixed_noise_px),
+        (Some(9), 0.3, 0.1)
+    );
+    assert_eq!(
+        (c.episodes, c.episode_frames, c.calibration_episodes),
+        (3, 7, 2)
+    );
+}

@@ -26,7 +26,9 @@ use anyhow::{anyhow, bail, Result};
 
 pub mod output;
 mod request;
+pub mod wfe;
 pub use request::{parse_score, FittedR0, Prepared, TuneRequest, MIN_FRAMES, SET_BY_TUNE};
+pub use wfe::{Criterion, WfePlan, WfeRequest, WfeTuneResult};
 
 use super::{all_pixels, default_pixel_grid, evaluate, jobs, Axis, Batch, Method, Score};
 use crate::config_file::{PixelCounts, ProcessingConfig};

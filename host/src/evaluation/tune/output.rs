@@ -1,15 +1,19 @@
 //! What a tuning run writes: the tuned configuration (with the
 //! assumptions as TOML comments and a `[tuned]` table that the loader
 //! ignores), every candidate's score as CSV, and R against N of the chosen
-//! rule as a plot. `brightpix tune` and the Python `TuneResult.save` write
-//! the same files.
+//! rule as a plot; on the residual WFE ([`write_wfe`]), the tuned
+//! configuration and the end-to-end run's CSV, summary and plots.
+//! `brightpix tune` and the Python `TuneResult.save` and
+//! `WfeTuneResult.save` write the same files.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, Result};
 
+use super::wfe::WfeTuneResult;
 use super::{Prepared, TuneResult};
+use crate::endtoend::report;
 use crate::evaluation::plot::{self, Marker, Plot, Series, COLORS};
 use crate::evaluation::Axis;
 
@@ -60,6 +64,106 @@ pub fn write(
         scores,
         plots,
     })
+}
+
+/// The files [`write_wfe`] wrote.
+#[derive(Clone, Debug)]
+pub struct WrittenWfe {
+    /// `DIRECTORY/NAME.toml`: the tuned configuration.
+    pub config: PathBuf,
+    /// `DIRECTORY/NAME-endtoend.csv`, `.md`, and the plots.
+    pub endtoend: report::Written,
+}
+
+impl WrittenWfe {
+    /// Every path: the configuration, then the end-to-end files.
+    pub fn paths(&self) -> Vec<PathBuf> {
+        let mut v = vec![self.config.clone()];
+        v.extend(self.endtoend.paths());
+        v
+    }
+}
+
+/// Writes the configuration tuned on the residual WFE (with `lines`, the
+/// sensor's assumptions ([`Prepared::assumptions`]), and the end-to-end
+/// run's as comments, and its `[tuned]` table) and the end-to-end run's
+/// CSV, summary and plots (`NAME-endtoend.*`) into `directory` (created).
+pub fn write_wfe(
+    directory: &Path,
+    name: &str,
+    result: &WfeTuneResult,
+    lines: &[String],
+) -> Result<WrittenWfe> {
+    check_name(name)?;
+    let config = result.config.save(directory, name)?;
+    let mut text = std::fs::read_to_string(&config)?;
+    text.push_str(&wfe_block(result, lines)?);
+    let tmp = config.with_extension("toml.tmp");
+    std::fs::write(&tmp, text)?;
+    std::fs::rename(&tmp, &config)?;
+    let run_line = report::run_line(&result.options, &result.endtoend.timing, result.threads);
+    let endtoend = report::write(
+        directory,
+        &format!("{name}-endtoend"),
+        "tune",
+        &result.endtoend,
+        &result.scenario,
+        &run_line,
+    )?;
+    Ok(WrittenWfe { config, endtoend })
+}
+
+/// The `[tuned]` table and the comment block of a WFE-tuned configuration.
+fn wfe_block(result: &WfeTuneResult, lines: &[String]) -> Result<String> {
+    let mut t = toml::Table::new();
+    t.insert(
+        "tool".into(),
+        format!("brightpix tune {}", env!("CARGO_PKG_VERSION")).into(),
+    );
+    t.insert("criterion".into(), "wfe".into());
+    t.insert("rule".into(), result.method.label().into());
+    t.insert("N".into(), (result.pixels as i64).into());
+    t.insert("wfe_nm".into(), toml::Value::Float(result.wfe_nm.value));
+    t.insert("wfe_se_nm".into(), toml::Value::Float(result.wfe_nm.se));
+    t.insert("strehl".into(), toml::Value::Float(result.strehl.value));
+    t.insert(
+        "science_wavelength_m".into(),
+        toml::Value::Float(result.science_wavelength_m),
+    );
+    if let Some(all) = result.wfe_all_pixels_nm {
+        t.insert("wfe_all_pixels_nm".into(), toml::Value::Float(all));
+    }
+    t.insert(
+        "N_not_resolved_from_best".into(),
+        toml::Value::Array(
+            result
+                .not_resolved
+                .iter()
+                .map(|&n| (n as i64).into())
+                .collect(),
+        ),
+    );
+    t.insert(
+        "dark_windows".into(),
+        toml::Value::Array(result.dark.iter().map(|&i| (i as i64).into()).collect()),
+    );
+    t.insert("seed".into(), (result.options.seed as i64).into());
+    t.insert("episodes".into(), (result.options.episodes as i64).into());
+    t.insert(
+        "episode_frames".into(),
+        (result.options.frames_per_episode as i64).into(),
+    );
+    let mut outer = toml::Table::new();
+    outer.insert("tuned".into(), toml::Value::Table(t));
+    let mut block = String::from(
+        "\n# ---- brightpix tune --criterion wfe: what was assumed (the [tuned] table is ignored by the loader) ----\n",
+    );
+    for l in lines.iter().chain(&result.scenario) {
+        let _ = writeln!(block, "# {l}");
+    }
+    block.push('\n');
+    block.push_str(&toml::to_string(&outer).map_err(|e| anyhow!("{e}"))?);
+    Ok(block)
 }
 
 /// Every class's every candidate, one CSV row each.
