@@ -1,10 +1,10 @@
 # Types of the native module brightpix._brightpix; the documentation is in its
 # docstrings (help(brightpix.process), ...), written once, in python/src/*.rs.
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from os import PathLike
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -212,23 +212,81 @@ class TuneResult:
     def scores(self) -> dict[str, Any]: ...
     def save(self, directory: StrPath, name: str = "tuned") -> list[Path]: ...
 
+class WfeTuneResult:
+    @property
+    def config(self) -> Config: ...
+    @property
+    def rule(self) -> str: ...
+    @property
+    def n(self) -> int: ...
+    @property
+    def wfe_nm(self) -> float: ...
+    @property
+    def wfe_se_nm(self) -> float: ...
+    @property
+    def strehl(self) -> float: ...
+    @property
+    def science_wavelength_m(self) -> float: ...
+    @property
+    def wfe_all_pixels_nm(self) -> float | None: ...
+    @property
+    def not_resolved(self) -> list[int]: ...
+    @property
+    def dark(self) -> list[int]: ...
+    @property
+    def assumptions(self) -> list[str]: ...
+    @property
+    def scores(self) -> dict[str, Any]: ...
+    def save(self, directory: StrPath, name: str = "tuned") -> list[Path]: ...
+
+Recorded: TypeAlias = npt.NDArray[np.uint16] | npt.NDArray[np.uint8]
+Star: TypeAlias = Sequence[float]  # (radius_arcsec, angle_deg)
+LayerSpec: TypeAlias = Sequence[float]  # (altitude_m, fraction, wind_m_s, direction_deg)
+
+@overload
 def tune(
     config: Config,
     conditions: Mapping[str, Any] | None = None,
     *,
-    frames: int = 4000,
+    criterion: Literal["r"] = "r",
+    frames: int | None = None,  # 4000
     seed: int = 1,
-    recorded: npt.NDArray[np.uint16] | npt.NDArray[np.uint8] | None = None,
+    recorded: Recorded | None = None,
     lgs: str | None = None,
-    launch: tuple[float, float] = (0.0, 0.0),
-    lgs_spot: float = 0.28,
+    launch: tuple[float, float] | None = None,  # (0, 0)
+    lgs_spot: float | None = None,  # 0.28
     obscuration: float = 0.0,
     illumination_threshold: float = 0.5,
-    keep_dark: bool = False,
+    keep_dark: bool | None = None,  # False
     score: Literal["along", "pooled"] | None = None,
     level_filter: int | None = None,
-    classes: int = 4,
-    angle_classes: int = 2,
-    max_truncation: float = 0.05,
+    classes: int | None = None,  # 4
+    angle_classes: int | None = None,  # 2
+    max_truncation: float | None = None,  # 0.05
 ) -> TuneResult: ...
+@overload
+def tune(
+    config: Config,
+    conditions: Mapping[str, Any] | None = None,
+    *,
+    criterion: Literal["wfe"],
+    seed: int = 1,
+    recorded: Recorded | None = None,
+    obscuration: float = 0.0,
+    illumination_threshold: float = 0.5,
+    level_filter: int | None = None,
+    asterism: Sequence[Star] | None = None,  # the paper's
+    science: Star | None = None,  # (0, 0)
+    layers: Sequence[LayerSpec] | None = None,  # the paper's three
+    wind_scale: float | None = None,  # 1
+    frame_rate: float | None = None,  # 250 Hz
+    delay: float | None = None,  # 2 frames
+    science_wavelength: float | None = None,  # 1.65e-6 m
+    dm_actuators: int | None = None,  # sub-apertures across + 1
+    dm_coupling: float | None = None,  # 0.2
+    fixed_noise: float | None = None,  # 0.2 px
+    episodes: int | None = None,  # 40
+    episode_frames: int | None = None,  # 100
+    calibration_episodes: int | None = None,  # 1
+) -> WfeTuneResult: ...
 def _config_from_keywords(keywords: Mapping[str, Any]) -> Config: ...

@@ -14,6 +14,7 @@ mod process;
 mod rig;
 mod simulate;
 mod tune;
+mod tune_wfe;
 
 use pyo3::prelude::*;
 
@@ -36,6 +37,7 @@ fn _brightpix(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<simulate::PySimulation>()?;
     m.add_function(wrap_pyfunction!(simulate::simulate, m)?)?;
     m.add_class::<tune::PyTuneResult>()?;
+    m.add_class::<tune_wfe::PyWfeTuneResult>()?;
     m.add_function(wrap_pyfunction!(tune::tune_instrument, m)?)?;
     Ok(())
 }

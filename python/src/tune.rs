@@ -1,12 +1,13 @@
 //! `brightpix.tune`: the rule and N for the user's instrument, by the
 //! library behind `brightpix tune` (`brightpix::evaluation::tune`: the
-//! request, the simulation and scoring, and the files it writes).
+//! request, the simulation and scoring, and the files it writes); the
+//! end-to-end criterion's result is in `tune_wfe.rs`.
 
 use std::path::PathBuf;
 
 use brightpix::config_file::ConfigFileError;
 use brightpix::evaluation::tune::{
-    output, parse_score, tune, Lgs, Prepared, TuneRequest, TuneResult,
+    output, parse_score, tune, Criterion, Lgs, Prepared, TuneRequest, TuneResult, WfeRequest,
 };
 use brightpix::evaluation::Axis;
 use brightpix::io::{FrameCube, FrameShape};
@@ -18,14 +19,15 @@ use pyo3::types::{PyDict, PyList};
 use crate::arrays::{frames, to_numpy};
 use crate::config::PyConfig;
 use crate::errors::config_error;
+use crate::tune_wfe::{self, EndToEndKeywords};
 
-fn value_error(e: anyhow::Error) -> PyErr {
+pub(crate) fn value_error(e: anyhow::Error) -> PyErr {
     PyValueError::new_err(format!("{e:#}"))
 }
 
 /// A file that cannot be written is an `OSError` (as `Config.save`'s);
 /// a bad name a `ValueError`.
-fn save_error(e: anyhow::Error) -> PyErr {
+pub(crate) fn save_error(e: anyhow::Error) -> PyErr {
     match e.downcast::<ConfigFileError>() {
         Ok(e) => config_error(e, false),
         Err(e) => match e.downcast::<std::io::Error>() {
@@ -249,9 +251,12 @@ fn conditions(obj: Option<&Bound<'_, PyAny>>) -> PyResult<TuneRequest> {
     TuneRequest::with_conditions(params, &names).map_err(value_error)
 }
 
-/// Simulate the instrument of ``config`` and choose the rule and N (per
-/// class of sub-apertures) that minimise the paper's slope error R, as
-/// ``brightpix tune`` does.
+/// Simulate the instrument of ``config`` and choose the rule and N that
+/// minimise ``criterion``, as ``brightpix tune`` does: ``"r"`` (the
+/// paper's slope error R, N per class of sub-apertures) or ``"wfe"`` (the
+/// on-axis residual wavefront error of an end-to-end open-loop MOAO
+/// simulation, one N for every sub-aperture; ``brightpix tune --criterion
+/// wfe``).
 ///
 /// ``conditions``: None (the paper's CANARY NGS: r0 = 12.5 cm, 200
 /// photons, 2 e- read noise, 0.22"/pixel, a 4.2 m telescope) or a dict of
@@ -262,67 +267,147 @@ fn conditions(obj: Option<&Bound<'_, PyAny>>) -> PyResult<TuneRequest> {
 /// ``recorded``: frames of the configured camera (``(F, H, W)`` uint8 or
 /// uint16, e.g. from :func:`read_frames`): the read noise, background
 /// error, photons and, for a NGS, r0 are measured in them instead.
-/// ``lgs``: ``"rayleigh:DEPTH[:ALTITUDE]"`` or
-/// ``"sodium:SEPARATION[:ALTITUDE]"`` (metres), launched from ``launch``
-/// (``(x, y)`` m from the pupil centre) with an unelongated spot of
-/// ``lgs_spot`` arcsec. ``obscuration``: central obscuration (m);
-/// sub-apertures lit below ``illumination_threshold`` of their area are
-/// dark (left out unless ``keep_dark``). ``score``: ``"along"`` (the
-/// elongation; the default for a LGS) or ``"pooled"`` (x and y; the default
-/// for a NGS). ``level_filter``: also try each subtracting rule with this
-/// gain shift (1..=16). ``frames`` simulated per class (at least 20; the
-/// command line's default 4000 takes minutes), ``classes`` and
-/// ``angle_classes`` for a LGS, ``seed``.
+/// ``obscuration``: central obscuration (m); sub-apertures lit below
+/// ``illumination_threshold`` of their area are dark (left out).
+/// ``level_filter``: also try each subtracting rule with this gain shift
+/// (1..=16). ``seed`` of the random streams.
 ///
-/// Returns a :class:`TuneResult`. Spots that lose more than
-/// ``max_truncation`` of their light outside the window give a
-/// ``UserWarning`` (the command line exits non-zero) and are listed in
-/// :attr:`TuneResult.truncated`. Bad values raise ``ValueError`` before
-/// any simulation. The end-to-end criterion (``brightpix tune --criterion
-/// wfe``) is the command line's only. GIL released.
+/// Criterion ``"r"`` only: ``lgs``: ``"rayleigh:DEPTH[:ALTITUDE]"`` or
+/// ``"sodium:SEPARATION[:ALTITUDE]"`` (metres), launched from ``launch``
+/// (``(x, y)`` m from the pupil centre, default ``(0, 0)``) with an
+/// unelongated spot of ``lgs_spot`` arcsec (default 0.28); ``keep_dark`` (default False) keeps dark
+/// sub-apertures with the median N; ``score``: ``"along"`` (the
+/// elongation; the default for a LGS) or ``"pooled"`` (x and y; the
+/// default for a NGS); ``frames`` simulated per class (default 4000, at
+/// least 20; 4000 takes minutes), ``classes`` (default 4) and
+/// ``angle_classes`` (default 2) for a LGS; ``max_truncation`` (default
+/// 0.05).
+///
+/// Criterion ``"wfe"`` only (the command line's defaults): ``asterism``
+/// ``[(radius_arcsec, angle_deg), ...]``, one wavefront sensor per guide
+/// star (default: the paper's ``[(40.2, 26.6), (40.2, 153.4), (19.0,
+/// 288.4)]``); ``science`` ``(radius_arcsec, angle_deg)`` (default on
+/// axis); ``layers`` ``[(altitude_m, fraction, wind_m_s, direction_deg),
+/// ...]``, fractions normalised (default ``[(0, 0.6, 7.5, 0), (500, 0.3,
+/// 10, 90), (5000, 0.1, 15, 45)]``); ``wind_scale`` (1); ``frame_rate``
+/// (250 Hz); ``delay`` (2 frames); ``science_wavelength`` (1.65e-6 m, of
+/// the Strehl ratio); ``dm_actuators`` across (sub-apertures across + 1);
+/// ``dm_coupling`` (0.2); ``fixed_noise`` (0.2 px, the fixed
+/// reconstructor's); ``episodes`` (40, at least 2), ``episode_frames``
+/// (100), ``calibration_episodes`` (1).
+///
+/// Returns a :class:`TuneResult` (``"r"``) or a :class:`WfeTuneResult`
+/// (``"wfe"``). With ``"r"``, spots that lose more than ``max_truncation``
+/// of their light outside the window give a ``UserWarning`` (the command
+/// line exits non-zero) and are listed in :attr:`TuneResult.truncated`.
+/// Bad values, and a keyword of the other criterion (which would be
+/// ignored), raise ``ValueError`` (``TypeError`` for a wrong type) before
+/// any simulation. GIL released.
 #[pyfunction(name = "tune")]
 #[pyo3(signature = (
-    config, conditions = None, *, frames = 4000, seed = 1, recorded = None, lgs = None,
-    launch = (0.0, 0.0), lgs_spot = 0.28, obscuration = 0.0, illumination_threshold = 0.5,
-    keep_dark = false, score = None, level_filter = None, classes = 4, angle_classes = 2,
-    max_truncation = 0.05
+    config, conditions = None, *, criterion = "r", frames = None, seed = 1, recorded = None,
+    lgs = None, launch = None, lgs_spot = None, obscuration = 0.0,
+    illumination_threshold = 0.5, keep_dark = None, score = None, level_filter = None,
+    classes = None, angle_classes = None, max_truncation = None, asterism = None, science = None,
+    layers = None, wind_scale = None, frame_rate = None, delay = None, science_wavelength = None,
+    dm_actuators = None, dm_coupling = None, fixed_noise = None, episodes = None,
+    episode_frames = None, calibration_episodes = None
 ))]
 #[allow(clippy::too_many_arguments)]
 pub fn tune_instrument(
     py: Python<'_>,
     config: Bound<'_, PyConfig>,
     conditions: Option<&Bound<'_, PyAny>>,
-    frames: usize,
+    criterion: &str,
+    frames: Option<usize>,
     seed: u64,
     recorded: Option<&Bound<'_, PyAny>>,
     lgs: Option<&str>,
-    launch: (f64, f64),
-    lgs_spot: f64,
+    launch: Option<(f64, f64)>,
+    lgs_spot: Option<f64>,
     obscuration: f64,
     illumination_threshold: f64,
-    keep_dark: bool,
+    keep_dark: Option<bool>,
     score: Option<&str>,
     level_filter: Option<u8>,
-    classes: usize,
-    angle_classes: usize,
-    max_truncation: f64,
-) -> PyResult<PyTuneResult> {
+    classes: Option<usize>,
+    angle_classes: Option<usize>,
+    max_truncation: Option<f64>,
+    asterism: Option<Vec<Vec<f64>>>,
+    science: Option<Vec<f64>>,
+    layers: Option<Vec<Vec<f64>>>,
+    wind_scale: Option<f64>,
+    frame_rate: Option<f64>,
+    delay: Option<f64>,
+    science_wavelength: Option<f64>,
+    dm_actuators: Option<usize>,
+    dm_coupling: Option<f64>,
+    fixed_noise: Option<f64>,
+    episodes: Option<usize>,
+    episode_frames: Option<usize>,
+    calibration_episodes: Option<usize>,
+) -> PyResult<Py<PyAny>> {
+    let criterion = Criterion::parse(criterion).map_err(value_error)?;
+    let endtoend = EndToEndKeywords {
+        asterism,
+        science,
+        layers,
+        wind_scale,
+        frame_rate,
+        delay,
+        science_wavelength,
+        dm_actuators,
+        dm_coupling,
+        fixed_noise,
+        episodes,
+        episode_frames,
+        calibration_episodes,
+    };
+    let mut given = endtoend.given();
+    for (name, is_given) in [
+        ("frames", frames.is_some()),
+        ("launch", launch.is_some()),
+        ("lgs_spot", lgs_spot.is_some()),
+        ("score", score.is_some()),
+        ("classes", classes.is_some()),
+        ("angle_classes", angle_classes.is_some()),
+        ("keep_dark", keep_dark.is_some()),
+        ("max_truncation", max_truncation.is_some()),
+    ] {
+        if is_given {
+            given.push(name);
+        }
+    }
+    criterion.check_given(&given).map_err(value_error)?;
     let mut request = self::conditions(conditions)?;
     request.lgs = lgs.map(Lgs::parse).transpose().map_err(value_error)?;
-    request.launch_m = [launch.0, launch.1];
-    request.lgs_spot_fwhm_arcsec = lgs_spot;
+    if let Some((x, y)) = launch {
+        request.launch_m = [x, y];
+    }
+    request.lgs_spot_fwhm_arcsec = lgs_spot.unwrap_or(request.lgs_spot_fwhm_arcsec);
     request.pupil.obscuration_m = obscuration;
     request.pupil.illumination_threshold = illumination_threshold;
     request.score = score.map(parse_score).transpose().map_err(value_error)?;
     request.level_filter = level_filter;
-    request.frames = frames;
+    request.frames = frames.unwrap_or(request.frames);
     request.seed = seed;
-    request.classes = classes;
-    request.angle_classes = angle_classes;
-    request.max_truncation = max_truncation;
-    request.check().map_err(value_error)?;
+    request.classes = classes.unwrap_or(request.classes);
+    request.angle_classes = angle_classes.unwrap_or(request.angle_classes);
+    request.max_truncation = max_truncation.unwrap_or(request.max_truncation);
     let config = &config.get().inner;
+    if criterion == Criterion::Wfe {
+        let request = WfeRequest {
+            tune: request,
+            endtoend: endtoend.conditions()?,
+        };
+        request.check().map_err(value_error)?;
+        let recorded = recorded.map(|obj| frames_of(obj, config)).transpose()?;
+        let result = tune_wfe::run(py, config, request, recorded)?;
+        return Ok(Bound::new(py, result)?.into_any().unbind());
+    }
+    request.check().map_err(value_error)?;
     let recorded = recorded.map(|obj| frames_of(obj, config)).transpose()?;
+    let keep_dark = keep_dark.unwrap_or(false);
     let (prepared, result) = py
         .detach(|| {
             let prepared = request.prepare(config, recorded.as_ref())?;
@@ -336,7 +421,7 @@ pub fn tune_instrument(
             Ok((prepared, result))
         })
         .map_err(value_error)?;
-    if let Some(message) = result.truncation(max_truncation) {
+    if let Some(message) = result.truncation(request.max_truncation) {
         PyErr::warn(
             py,
             &py.get_type::<PyUserWarning>(),
@@ -345,11 +430,12 @@ pub fn tune_instrument(
         )?;
     }
     let assumptions = prepared.assumptions("the recorded frames");
-    Ok(PyTuneResult {
+    let result = PyTuneResult {
         prepared,
         result,
         assumptions,
-    })
+    };
+    Ok(Bound::new(py, result)?.into_any().unbind())
 }
 
 /// `obj` as a cube of the configured camera's frames.

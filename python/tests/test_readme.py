@@ -12,19 +12,21 @@ from pathlib import Path
 import brightpix
 
 
-def readme_example(repo: Path, heading: str = "Python") -> str:
+def readme_example(repo: Path, heading: str = "Python", index: int = 0) -> str:
     text = (repo / "README.md").read_text()
     section = text.split(f"\n## {heading}\n", 1)[1].split("\n## ", 1)[0]
     blocks = re.findall(r"```python\n(.*?)```", section, re.S)
-    assert blocks, f"README.md's section {heading!r} has no python block"
-    return blocks[0]
+    assert len(blocks) > index, f"README.md's section {heading!r} has no python block {index}"
+    return blocks[index]
 
 
-def run_example(repo: Path, tmp_path: Path, heading: str) -> subprocess.CompletedProcess[str]:
+def run_example(
+    repo: Path, tmp_path: Path, heading: str, index: int = 0
+) -> subprocess.CompletedProcess[str]:
     (tmp_path / "examples").mkdir()
     shutil.copy(repo / "examples" / "canary.toml", tmp_path / "examples")
     script = tmp_path / "example.py"
-    script.write_text(readme_example(repo, heading))
+    script.write_text(readme_example(repo, heading, index))
     return subprocess.run(
         [sys.executable, str(script)],
         cwd=tmp_path,
@@ -53,3 +55,17 @@ def test_readme_tune_example_runs(repo: Path, tmp_path: Path) -> None:
     assert brightpix.Config.load(tmp_path / "tuned" / "tuned.toml").n_subapertures == 37
     for name in ["tuned-tune.csv", "tuned-tune.svg", "tuned-tune.png"]:
         assert (tmp_path / "tuned" / name).stat().st_size > 0, name
+
+
+def test_readme_tune_wfe_example_runs(repo: Path, tmp_path: Path) -> None:
+    done = run_example(repo, tmp_path, "Reproducing the paper; choosing N", index=1)
+    assert done.returncode == 0, done.stderr
+    rule, n, wfe, not_resolved = done.stdout.split(" ", 3)
+    assert rule in {"subtract-next", "threshold"} or rule.startswith("subtract-mean"), done.stdout
+    assert 1 <= int(n) <= 256 and 0 < int(wfe) < 1000, done.stdout
+    assert int(n) in [int(m) for m in not_resolved.strip()[1:-1].split(", ")], done.stdout
+    # One N for the 37 windows the 4.2 m pupil lights at least half.
+    tuned = brightpix.Config.load(tmp_path / "tuned" / "tuned.toml")
+    assert tuned.n_subapertures == 37 and tuned.keywords()["n"] == int(n)
+    for suffix in [".csv", ".md", ".svg", ".png", "-strehl.svg", "-budget.png"]:
+        assert (tmp_path / "tuned" / f"tuned-endtoend{suffix}").stat().st_size > 0, suffix
