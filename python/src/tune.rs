@@ -429,7 +429,7 @@ pub fn tune_instrument(
             1,
         )?;
     }
-    let assumptions = prepared.assumptions("the recorded frames");
+    let assumptions = prepared.assumptions("the recorded frames", Criterion::R);
     let result = PyTuneResult {
         prepared,
         result,

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use brightpix::config_file::ProcessingConfig;
 use brightpix::endtoend::{Conditions, GuideStar};
 use brightpix::evaluation::tune::wfe::WfeScore;
-use brightpix::evaluation::tune::{output, WfeRequest, WfeTuneResult};
+use brightpix::evaluation::tune::{output, Criterion, WfeRequest, WfeTuneResult};
 use brightpix::io::FrameCube;
 use brightpix::simulator::atmosphere::Layer;
 use pyo3::exceptions::PyValueError;
@@ -297,6 +297,6 @@ pub fn run(
         .map_err(value_error)?;
     Ok(PyWfeTuneResult {
         result,
-        lines: prepared.assumptions("the recorded frames"),
+        lines: prepared.assumptions("the recorded frames", Criterion::Wfe),
     })
 }

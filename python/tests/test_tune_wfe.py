@@ -245,6 +245,10 @@ def test_result_agrees_with_its_scores_and_its_toml(
     # The assumptions: the sensor's, then the end-to-end run's.
     assert result.assumptions[0].startswith("telescope 4.2 m")
     assert any(a.startswith("loop: open-loop MOAO at 250 Hz") for a in result.assumptions)
+    # What was scored is the residual WFE, not R per class of sub-apertures.
+    scoring = next(a for a in result.assumptions if a.startswith("scoring:"))
+    assert "residual wavefront error" in scoring and "frames per class" not in scoring, scoring
+    assert not any("representative sub-aperture" in a for a in result.assumptions)
     assert "WfeTuneResult" in repr(result) and result.rule in repr(result)
     # The saved TOML's [tuned] table holds the same.
     tomllib = pytest.importorskip("tomllib")

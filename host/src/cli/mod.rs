@@ -23,7 +23,7 @@ mod stream;
 mod tune;
 mod view;
 
-use clap::{Parser, Subcommand};
+use clap::{ArgMatches, CommandFactory, FromArgMatches, Parser, Subcommand};
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -71,7 +71,9 @@ pub(crate) fn at_least_one(text: &str) -> Result<usize, String> {
 
 /// Runs the command line; errors are printed with their causes.
 pub fn main() -> ExitCode {
-    match dispatch(Cli::parse().command) {
+    let matches = Cli::command().get_matches();
+    let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    match dispatch(cli.command, &matches) {
         Ok(()) => ExitCode::SUCCESS,
         Err(error) => {
             eprintln!("brightpix: error: {error:#}");
@@ -87,16 +89,30 @@ where
     I: IntoIterator<Item = T>,
     T: Into<std::ffi::OsString> + Clone,
 {
-    dispatch(Cli::try_parse_from(args)?.command)
+    let matches = Cli::command().try_get_matches_from(args)?;
+    dispatch(Cli::from_arg_matches(&matches)?.command, &matches)
 }
 
-fn dispatch(command: Command) -> anyhow::Result<()> {
+/// The ids of the options given on the command line (not defaulted) of
+/// subcommand `name`: for commands whose options apply in some modes only,
+/// so that one given in another mode is refused, not ignored.
+fn given(matches: &ArgMatches, name: &str) -> Vec<String> {
+    let Some(sub) = matches.subcommand_matches(name) else {
+        return Vec::new();
+    };
+    sub.ids()
+        .filter(|id| sub.value_source(id.as_str()) == Some(clap::parser::ValueSource::CommandLine))
+        .map(|id| id.as_str().to_string())
+        .collect()
+}
+
+fn dispatch(command: Command, matches: &ArgMatches) -> anyhow::Result<()> {
     match command {
         Command::Process(args) => process::run(args),
         Command::Bench(args) => bench::run(args),
         Command::Paper(args) => paper::run(args),
         Command::Endtoend(args) => endtoend::run(args),
-        Command::Tune(args) => tune::run(args),
+        Command::Tune(args) => tune::run(args, &given(matches, "tune")),
         Command::Demo(args) => demo::run(args),
         Command::Devices(args) => devices::run(args),
         Command::Configure(args) => configure::run(args),

@@ -252,8 +252,31 @@ fn setup(args: &TuneArgs, request: &TuneRequest) -> Result<Setup> {
     Ok(Setup { config, prepared })
 }
 
-pub fn run(args: TuneArgs) -> Result<()> {
+/// Refuses an option of the other criterion among those `given` on the
+/// command line (clap's ids), which that criterion would ignore.
+fn refuse_other_criterion(criterion: Criterion, given: &[String]) -> Result<()> {
+    for id in given {
+        let flag = format!("--{}", id.replace('_', "-"));
+        if id == "allow_truncation" && criterion == Criterion::Wfe {
+            bail!("{flag}: criterion wfe does not check the spots' truncation");
+        }
+        // The library names the simulated frames per class `frames`; here
+        // `--frames` is the recorded frames, which both criteria use.
+        let name = match id.as_str() {
+            "count" => "frames",
+            "frames" => continue,
+            other => other,
+        };
+        criterion.check_given(&[name]).context(flag)?;
+    }
+    Ok(())
+}
+
+/// `given`: the ids of the options given on the command line (the others
+/// took their defaults).
+pub fn run(args: TuneArgs, given: &[String]) -> Result<()> {
     let criterion = Criterion::parse(&args.criterion)?;
+    refuse_other_criterion(criterion, given)?;
     let request = request(&args)?;
     // The end-to-end conditions, checked with the rest before any work.
     let endtoend = match criterion {
@@ -272,7 +295,7 @@ pub fn run(args: TuneArgs) -> Result<()> {
         .frames
         .as_ref()
         .map_or(String::new(), |p| p.display().to_string());
-    let lines = setup.prepared.assumptions(&recorded_from);
+    let lines = setup.prepared.assumptions(&recorded_from, criterion);
     for l in &lines {
         eprintln!("brightpix: tune: {l}");
     }

@@ -1,16 +1,12 @@
-use super::super::{Cli, Command};
 use crate::config_file::{PixelCounts, ProcessingConfig};
 use crate::simulator::camera::{CameraSimulator, CameraWindow};
 use crate::simulator::{SimulationParams, Simulator};
 use clap::Parser;
 use std::path::{Path, PathBuf};
 
+/// A whole command line, as `main` runs it (the options given are known).
 fn run(argv: &[&str]) -> anyhow::Result<()> {
-    match Cli::try_parse_from(argv).expect("valid arguments").command {
-        Command::Tune(a) => super::run(a),
-        Command::Process(a) => super::super::process::run(a),
-        _ => unreachable!(),
-    }
+    super::super::run_from(argv)
 }
 
 fn temp(tag: &str) -> PathBuf {
@@ -357,13 +353,84 @@ fn criterion_wfe_writes_the_n_of_least_residual_wavefront_error() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// An option of the other criterion is refused before any work (it would
+/// be ignored), naming the flag; its default is not "given". The wfe TOML
+/// says what was scored, not R's classes.
+#[test]
+fn an_option_of_the_other_criterion_is_refused() {
+    let dir = temp("tune-other-criterion");
+    let out = dir.join("out");
+    let o = out.to_str().unwrap();
+    let refused = |extra: &[&str], wanted: &[&str]| {
+        let mut argv = vec!["brightpix", "tune", "--config", EXAMPLE, "--out", o];
+        argv.extend_from_slice(extra);
+        let e = format!("{:#}", run(&argv).unwrap_err());
+        for w in wanted {
+            assert!(e.contains(w), "{extra:?}: {e}");
+        }
+        assert!(!out.exists(), "{extra:?}: wrote {}", out.display());
+    };
+    let wfe = ["--criterion", "wfe"];
+    refused(
+        &[&wfe[..], &["--count", "100"]].concat(),
+        &["--count", "criterion wfe has no use for frames"],
+    );
+    refused(
+        &[&wfe[..], &["--score", "pooled"]].concat(),
+        &["--score", "criterion wfe"],
+    );
+    refused(&[&wfe[..], &["--classes", "3"]].concat(), &["--classes"]);
+    refused(&[&wfe[..], &["--keep-dark"]].concat(), &["--keep-dark"]);
+    refused(
+        &[&wfe[..], &["--allow-truncation"]].concat(),
+        &["--allow-truncation", "truncation"],
+    );
+    refused(&[&wfe[..], &["--launch", "1,0"]].concat(), &["--launch"]);
+    refused(&["--episodes", "3"], &["--episodes", "criterion wfe only"]);
+    refused(
+        &["--criterion", "r", "--layers", "0:1:10:0"],
+        &["--layers", "criterion wfe only"],
+    );
+    // Defaults are not given: criterion wfe with its own options runs.
+    run(&[
+        "brightpix",
+        "tune",
+        "--config",
+        EXAMPLE,
+        "--out",
+        o,
+        "--criterion",
+        "wfe",
+        "--episodes",
+        "2",
+        "--episode-frames",
+        "2",
+        "--seed",
+        "3",
+    ])
+    .unwrap();
+    let text = std::fs::read_to_string(out.join("tuned.toml")).unwrap();
+    assert!(
+        text.contains("# scoring: on-axis residual wavefront error"),
+        "{text}"
+    );
+    assert!(
+        !text.contains("frames per class") && !text.contains("representative"),
+        "{text}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn end_to_end_options_are_the_librarys_conditions() {
     let conditions = |extra: &[&str]| {
         let mut argv = vec!["brightpix", "tune", "--config", EXAMPLE, "--out", "unused"];
         argv.extend(extra);
-        match Cli::try_parse_from(argv).expect("valid arguments").command {
-            Command::Tune(a) => a.endtoend.conditions().unwrap(),
+        match super::super::Cli::try_parse_from(argv)
+            .expect("valid arguments")
+            .command
+        {
+            super::super::Command::Tune(a) => a.endtoend.conditions().unwrap(),
             _ => unreachable!(),
         }
     };

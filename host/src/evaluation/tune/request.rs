@@ -11,7 +11,7 @@
 
 use anyhow::{anyhow, bail, Result};
 
-use super::{candidate_methods, Conditions, Lgs, PupilModel, TuneOptions};
+use super::{candidate_methods, Conditions, Criterion, Lgs, PupilModel, TuneOptions};
 use crate::config_file::ProcessingConfig;
 use crate::evaluation::recorded::{measure, shift_and_add_fwhm, Measured};
 use crate::evaluation::Axis;
@@ -293,10 +293,19 @@ fn fit_r0(params: &SimulationParams, config: &ProcessingConfig, m: &Measured) ->
 impl Prepared {
     /// What was assumed, one line each (the command line prints them and
     /// both write them into the tuned TOML). `recorded_from` names the
-    /// recorded frames, if any.
-    pub fn assumptions(&self, recorded_from: &str) -> Vec<String> {
+    /// recorded frames, if any; `criterion` says what is scored (with
+    /// [`Criterion::Wfe`] the classes, their frames and R do not apply: the
+    /// end-to-end run's own description follows these lines).
+    pub fn assumptions(&self, recorded_from: &str, criterion: Criterion) -> Vec<String> {
         let p = &self.conditions.params;
         let c = &self.conditions;
+        let candidates = self
+            .options
+            .methods
+            .iter()
+            .map(|m| m.label())
+            .collect::<Vec<_>>()
+            .join(", ");
         let mut v = vec![
             format!(
                 "telescope {} m, central obscuration {} m, {} sub-apertures across (d = {:.3} m); illumination threshold {}",
@@ -339,19 +348,24 @@ impl Prepared {
                 ),
                 None => "guide star: natural (point source)".to_string(),
             },
-            format!(
-                "scoring: R {}; {} frames per class, seed {}; candidates {}",
-                c.score_axis.name(),
-                self.options.frames,
-                self.options.seed,
-                self.options
-                    .methods
-                    .iter()
-                    .map(|m| m.label())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ),
-            "not modelled: flat field, threshold, lenslet aberrations beyond the spot model; each class is one representative sub-aperture".to_string(),
+            match criterion {
+                Criterion::R => format!(
+                    "scoring: R {}; {} frames per class, seed {}; candidates {}",
+                    c.score_axis.name(),
+                    self.options.frames,
+                    self.options.seed,
+                    candidates
+                ),
+                Criterion::Wfe => format!(
+                    "scoring: on-axis residual wavefront error of the end-to-end simulation described below (matched reconstructor), one N for every sub-aperture; seed {}; candidates {}",
+                    self.options.seed, candidates
+                ),
+            },
+            match criterion {
+                Criterion::R => "not modelled: flat field, threshold, lenslet aberrations beyond the spot model; each class is one representative sub-aperture",
+                Criterion::Wfe => "not modelled: flat field, threshold, lenslet aberrations beyond the spot model",
+            }
+            .to_string(),
         ];
         if let Some(m) = &self.measured {
             v.push(format!(
