@@ -61,7 +61,7 @@ impl PyTuneResult {
     }
 
     /// The chosen rule, as ``brightpix tune`` prints it (e.g.
-    /// ``"subtract-next"``, ``"subtract-mean M=4"``).
+    /// ``"subtract-next"``, ``"subtract-mean(M=4)"``).
     #[getter]
     fn rule(&self) -> String {
         self.result.method.label()
