@@ -133,7 +133,9 @@ pub struct TuneArgs {
     /// What the tuned N minimises: r (the paper's slope error R, per class of sub-apertures) or
     /// wfe (the on-axis residual wavefront error of an end-to-end open-loop MOAO simulation
     /// through a layered atmosphere, one N for every window; NGS only; see `brightpix endtoend`
-    /// and the options below).
+    /// and the options below). An option that only the other criterion uses is refused: with
+    /// wfe, --count, --score, --classes, --angle-classes, --launch, --lgs-spot, --keep-dark,
+    /// --max-truncation and --allow-truncation; with r, the end-to-end options below.
     #[arg(long, default_value = "r")]
     criterion: String,
     #[command(flatten)]
