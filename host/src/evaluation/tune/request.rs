@@ -411,14 +411,7 @@ impl TuneRequest {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn canary() -> ProcessingConfig {
-        ProcessingConfig::load(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../examples/canary.toml"
-        ))
-        .unwrap()
-    }
+    use crate::sil::canary_config;
 
     #[test]
     fn conditions_that_tune_sets_are_refused_and_the_grid_gives_the_pupil() {
@@ -433,7 +426,7 @@ mod tests {
             r0_m: 0.1,
             ..SimulationParams::canary()
         };
-        let config = canary();
+        let config = canary_config();
         let mut request = TuneRequest::with_conditions(params.clone(), &["r0_m"]).unwrap();
         request.frames = MIN_FRAMES;
         let prepared = request.prepare(&config, None).unwrap();

@@ -387,14 +387,7 @@ impl WfeTuneResult {
 mod tests {
     use super::*;
     use crate::evaluation::tune::Lgs;
-
-    fn canary() -> ProcessingConfig {
-        ProcessingConfig::load(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../examples/canary.toml"
-        ))
-        .unwrap()
-    }
+    use crate::sil::canary_config;
 
     #[test]
     fn criteria_parse_and_refuse_the_other_criterions_options() {
@@ -438,13 +431,13 @@ mod tests {
         bad.endtoend.episodes = 1;
         assert!(bad.check().unwrap_err().to_string().contains("at least 2"));
         // So is a plan, before the scenario is built.
-        let e = bad.plan(&canary(), None).err().unwrap().to_string();
+        let e = bad.plan(&canary_config(), None).err().unwrap().to_string();
         assert!(e.contains("episodes 1"), "{e}");
     }
 
     #[test]
     fn dark_windows_are_left_out_of_the_scenario() {
-        let config = canary();
+        let config = canary_config();
         let mut request = WfeRequest::default();
         request.tune.frames = crate::evaluation::tune::MIN_FRAMES;
         request.endtoend.episodes = 2;
